@@ -88,6 +88,8 @@ wire_struct! {
         pub max_speed_mps: f32,
         /// Feed-forward PWM permille per m/s of wheel speed.
         pub pwm_per_mps: f32,
+        /// A move ends this many seconds of travel early, so the wheels coast onto its target.
+        pub coast_s: f32,
     }
 }
 
@@ -299,6 +301,7 @@ impl Default for Settings {
                 min_speed_mps: 0.03,
                 max_speed_mps: 0.5,
                 pwm_per_mps: 1800.0,
+                coast_s: 0.02,
             },
             line_sensor: LineSensorSettings {
                 white: [3000; 8],

@@ -208,8 +208,10 @@ mod tests {
 
     #[test]
     fn reduced_copies_the_shared_fields() {
-        let mut s = RobotState::default();
-        s.uptime_ms = 7;
+        let mut s = RobotState {
+            uptime_ms: 7,
+            ..Default::default()
+        };
         s.encoders.left_ticks = -3;
         s.wheels.right_mps = 0.25;
         s.line.position_um = -1200;
