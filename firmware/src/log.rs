@@ -1,7 +1,7 @@
 //! Leveled debug log (thesis 6.2.3) whose messages leave the robot as Log packets.
 //!
 //! `fw_log!(firmware, Warn, "module", "format {}", args)` formats into a fixed buffer (cut at
-//! [`LOG_TEXT`](protocol::packets::LOG_TEXT) bytes) only when the level passes the configured
+//! [`LOG_TEXT`] bytes) only when the level passes the configured
 //! verbosity, so a disabled message costs one comparison.
 
 use core::fmt::Write;

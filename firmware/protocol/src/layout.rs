@@ -1,6 +1,6 @@
 //! Compile-time descriptions of wire structs: field names, offsets and sizes, and a layout hash.
 //!
-//! Every wire struct is declared through [`wire_struct!`], which derives its [`TypeInfo`] from the
+//! Every wire struct is declared through [`wire_struct!`](crate::wire_struct), which derives its [`TypeInfo`] from the
 //! compiler's own layout (`core::mem::offset_of!`, `size_of`). Nothing here is typed in by hand, so
 //! the settings-layout hash in the hello packet changes whenever a field is added, removed,
 //! renamed, retyped or moved.
