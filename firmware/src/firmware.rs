@@ -546,7 +546,27 @@ impl<B: Board> Firmware<B> {
             right_mps: self.speed[1].speed(now, tick, timeout),
         };
         let (targets, pwm) = self.control(now, wheels, dt);
-        self.apply_pwm(pwm.0, pwm.1);
+        // A single-channel encoder cannot see direction: pulses count in the direction the wheel
+        // is meant to turn (its target's sign, or the duty's without a target), and a wheel
+        // reverses only from standstill, so its last pulses before stopping still count the old way.
+        let speeds = [wheels.left_mps, wheels.right_mps];
+        let mut duty = [pwm.0, pwm.1];
+        for (k, d) in duty.iter_mut().enumerate() {
+            let intent = [targets.0, targets.1][k];
+            let intent = if intent != 0.0 { intent } else { *d };
+            if intent == 0.0 {
+                continue;
+            }
+            let backwards = intent < 0.0;
+            if backwards != self.speed[k].is_backwards() {
+                if speeds[k] != 0.0 {
+                    *d = 0.0;
+                } else {
+                    self.speed[k].set_backwards(backwards);
+                }
+            }
+        }
+        self.apply_pwm(duty[0], duty[1]);
         self.sample_sensors(now, wheels, targets);
         if let Some(mode) = self.reflector.due(now, &self.settings.reflector) {
             match mode {
@@ -628,7 +648,7 @@ impl<B: Board> Firmware<B> {
         (l, r)
     }
 
-    /// Maps a duty request to the motor: dead-band compensation, limit, and encoder direction.
+    /// Maps a duty request to the motor: dead-band compensation and limit.
     fn apply_pwm(&mut self, left: f32, right: f32) {
         let m = self.settings.motor;
         let max = f32::from(m.max_pwm.min(1000));
@@ -641,12 +661,6 @@ impl<B: Board> Firmware<B> {
             (mag.copysign(p)) as i16
         };
         let (l, r) = (map(left), map(right));
-        if l != 0 {
-            self.speed[0].set_backwards(l < 0);
-        }
-        if r != 0 {
-            self.speed[1].set_backwards(r < 0);
-        }
         self.board.set_pwm(l, r);
         self.state.wheels.left_pwm = l;
         self.state.wheels.right_pwm = r;

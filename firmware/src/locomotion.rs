@@ -464,8 +464,8 @@ mod tests {
         let w = WheelInputs {
             left_ticks: 0,
             right_ticks: 10,
-            left_mps: 0.1,
-            right_mps: 0.1,
+            left_mps: 0.0,
+            right_mps: 0.0,
         };
         l.step(WheelInputs::default(), &s, 0.005, &mut |_| {});
         let c = l.step(w, &s, 0.005, &mut |_| {}).unwrap();

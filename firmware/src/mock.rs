@@ -23,7 +23,7 @@ pub struct WheelModel {
     pub max_speed_mps: f32,
     /// Duty (permille) below which static friction holds the wheel.
     pub deadband_pwm: f32,
-    /// Motor time constant, seconds.
+    /// Time constant of the wheel speed, seconds (motor and the robot's own inertia).
     pub tau_s: f32,
     /// Wheel diameter, metres.
     pub diameter_m: f32,
@@ -36,9 +36,9 @@ pub struct WheelModel {
 impl Default for WheelModel {
     fn default() -> Self {
         Self {
-            max_speed_mps: 0.5,
-            deadband_pwm: 40.0,
-            tau_s: 0.02,
+            max_speed_mps: 0.64,
+            deadband_pwm: 30.0,
+            tau_s: 0.06,
             diameter_m: 0.009,
             edges_per_rev: 40,
             black_fraction: 0.4,
@@ -222,17 +222,22 @@ impl MockBoard {
         self.pose.theta += dtheta;
     }
 
+    /// Lit reading of one spot: white and black mixed by how much of the spot's 3 mm footprint
+    /// the tape covers, so the line position varies smoothly as the tape slides under the sensor.
     fn spot_reflectance(&self, spot: usize) -> u16 {
         let f = &self.floor;
         let (s, c) = (libm::sin(self.pose.theta), libm::cos(self.pose.theta));
         let lateral = (spot as f64 - 3.5) * f.spot_pitch_m;
-        // The sensor's rightward axis in the world is (sin θ, −cos θ).
+        // The sensor's rightward axis in the world is (sin θ, −cos θ); for small headings the
+        // footprint's extent across the tape is its width over cos θ.
         let y = self.pose.y + f.sensor_ahead_m * s - lateral * c;
-        if (y - f.tape_y_m).abs() <= f.tape_width_m * 0.5 {
-            f.black
-        } else {
-            f.white
-        }
+        let half_spot = 0.5 * f.spot_pitch_m * c.abs().max(0.2);
+        let half_tape = f.tape_width_m * 0.5;
+        let overlap = ((y + half_spot).min(f.tape_y_m + half_tape)
+            - (y - half_spot).max(f.tape_y_m - half_tape))
+        .max(0.0);
+        let black_share = (overlap / (2.0 * half_spot)).min(1.0);
+        (f64::from(f.white) + (f64::from(f.black) - f64::from(f.white)) * black_share) as u16
     }
 }
 
@@ -423,8 +428,8 @@ mod tests {
         let mut times = std::vec::Vec::new();
         let mut t = 0.0f32;
         let dt = 1e-4;
-        // Duty holding 0.1 m/s: share 0.2 of the span above the dead band.
-        let pwm = (40.0 + 0.2 * 960.0) as i16;
+        // Duty holding 0.1 m/s: 0.1/0.64 of the span above the dead band.
+        let pwm = (30.0 + 0.1 / 0.64 * 970.0) as i16;
         for _ in 0..2000 {
             w.step(&model, pwm, dt, |f| times.push(t + f * dt));
             t += dt;

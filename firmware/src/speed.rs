@@ -46,6 +46,11 @@ impl SpeedMeter {
         self.last_edge = Some(at);
     }
 
+    /// Whether pulses currently count backwards.
+    pub fn is_backwards(&self) -> bool {
+        self.backwards
+    }
+
     /// Pulses since boot, signed by direction (wraps).
     pub fn ticks(&self) -> i32 {
         self.ticks

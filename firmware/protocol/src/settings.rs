@@ -300,8 +300,8 @@ impl Default for Settings {
                 decel_distance_m: 0.025,
                 min_speed_mps: 0.03,
                 max_speed_mps: 0.5,
-                pwm_per_mps: 1800.0,
-                coast_s: 0.02,
+                pwm_per_mps: 1400.0,
+                coast_s: 0.06,
             },
             line_sensor: LineSensorSettings {
                 white: [3000; 8],
