@@ -1,0 +1,154 @@
+//! `pocketbot-sim`: serves every robot of a simulated world on its own TCP port with SLIP framing,
+//! so any client can connect to it as to a robot on a serial line.
+
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use protocol::slip::{self, SlipDecoder};
+use simulator::runtime::{self, Pace};
+use simulator::world::{file, presets};
+use simulator::{SimConfig, Simulation};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpListener;
+
+/// Serve simulated PocketBot2 robots over TCP (SLIP-framed protocol packets).
+#[derive(Parser, Debug)]
+#[command(
+    version,
+    after_help = "Examples:\n  pocketbot-sim --world push\n  pocketbot-sim --world worlds/my.toml --port-base 7101\n  pocketbot-sim --port-base 0   # ephemeral ports, printed one robot per line"
+)]
+struct Args {
+    /// A preset name or a world file (.toml).
+    #[arg(long, default_value = "oval")]
+    world: String,
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: String,
+    /// Port of the first robot; the next robots take the following ports. 0 picks free ports.
+    #[arg(long, default_value_t = 7001)]
+    port_base: u16,
+    /// Seed of noise and link jitter (defaults to the world's).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Run faster than real time instead of pacing to the wall clock.
+    #[arg(long)]
+    fast: bool,
+    /// Stop after this many simulated seconds.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// List the built-in worlds and exit.
+    #[arg(long)]
+    list_worlds: bool,
+}
+
+fn load_world(name: &str) -> Result<simulator::World> {
+    if let Some(w) = presets::preset(name) {
+        return Ok(w);
+    }
+    if name.ends_with(".toml") || std::path::Path::new(name).exists() {
+        return file::load(name).map_err(|e| anyhow::anyhow!("{e}"));
+    }
+    bail!(
+        "unknown world {name:?}: not a preset ({}) nor a .toml file",
+        presets::preset_names().join(", ")
+    )
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() -> Result<()> {
+    let args = Args::parse();
+    if args.list_worlds {
+        for name in presets::preset_names() {
+            let w = presets::preset(name).context("preset")?;
+            println!("{name:10} {} robots  {}", w.robots.len(), w.description);
+        }
+        return Ok(());
+    }
+    let world = load_world(&args.world)?;
+    let sim = Simulation::new(
+        world,
+        SimConfig {
+            seed: args.seed,
+            ..SimConfig::default()
+        },
+    );
+    let mut listeners = Vec::new();
+    for (i, r) in sim.robots().iter().enumerate() {
+        let port = if args.port_base == 0 {
+            0
+        } else {
+            args.port_base + i as u16
+        };
+        let l = TcpListener::bind((args.bind.as_str(), port))
+            .await
+            .with_context(|| format!("binding robot {} to {}:{port}", r.id(), args.bind))?;
+        println!("robot {} tcp://{}", r.id(), l.local_addr()?);
+        listeners.push(l);
+    }
+    println!("serving {} robots", listeners.len());
+    let pace = if args.fast {
+        Pace::Unpaced
+    } else {
+        Pace::WallClock
+    };
+    let (handle, ends, task) = runtime::spawn(sim, pace);
+    for (listener, end) in listeners.into_iter().zip(ends) {
+        tokio::spawn(serve_robot(listener, end));
+    }
+    match args.duration {
+        Some(secs) => {
+            let end = Duration::from_secs_f64(secs);
+            loop {
+                let t = handle.truth().await.context("simulation stopped")?;
+                if t.now >= end {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        }
+        None => {
+            tokio::signal::ctrl_c().await?;
+        }
+    }
+    handle.stop();
+    let _ = task.await;
+    Ok(())
+}
+
+/// Bridges one robot's link to one TCP client at a time.
+async fn serve_robot(listener: TcpListener, end: runtime::LinkEnd) {
+    let (sender, mut from_robot) = end.split();
+    loop {
+        let Ok((mut stream, _)) = listener.accept().await else {
+            return;
+        };
+        let _ = stream.set_nodelay(true);
+        while from_robot.try_recv().is_ok() {}
+        sender.connect();
+        let mut decoder = SlipDecoder::<{ protocol::MAX_PACKET }>::new();
+        let mut buf = [0u8; 1024];
+        let mut out = vec![0u8; slip::max_encoded_len(protocol::MAX_PACKET)];
+        loop {
+            tokio::select! {
+                read = stream.read(&mut buf) => {
+                    let n = match read { Ok(0) | Err(_) => break, Ok(n) => n };
+                    for &b in &buf[..n] {
+                        // Corrupt frames are counted by the decoder and dropped here.
+                        if let Ok(Some(frame)) = decoder.push(b) {
+                            sender.send(frame.to_vec());
+                        }
+                    }
+                }
+                packet = from_robot.recv() => {
+                    let Some(p) = packet else { return };
+                    let Ok(n) = slip::encode(&p, &mut out) else { continue };
+                    if stream.write_all(&out[..n]).await.is_err() {
+                        break;
+                    }
+                }
+            }
+        }
+        sender.disconnect();
+    }
+}

@@ -1,0 +1,167 @@
+//! The drive train of one wheel: DC motor with back-EMF and friction driven by PWM from the battery,
+//! the wheel's encoder stripes, and the tyre's grip on the floor.
+//!
+//! The motor integrates implicitly in its linear terms (stable at any step), dry friction holds a
+//! wheel whose drive torque cannot beat it, and the tyre transmits at most μ·N: a wheel asked for
+//! more spins.
+
+use crate::spec::{MotorSpec, RobotSpec};
+
+/// State of one wheel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WheelState {
+    /// Angular speed, rad/s (positive drives the robot forward).
+    pub omega: f64,
+    /// Angle turned since start, radians.
+    pub angle: f64,
+    /// Current through the motor last step, amperes (signed).
+    pub current_a: f64,
+}
+
+impl WheelState {
+    /// Integrates the motor for `dt` at `duty` (−1..1) from a battery at `volts`, before the tyre
+    /// acts. Returns nothing: the tyre impulse is applied afterwards with [`WheelState::apply_tyre`].
+    pub fn drive(&mut self, m: &MotorSpec, duty: f64, volts: f64, dt: f64) {
+        let v = volts * duty.clamp(-1.0, 1.0);
+        // τ = k_t·(v − k_t·ω)/R − b·ω − τ_c·sign(ω): implicit in ω for the linear part.
+        let damping = m.k_t * m.k_t / m.resistance_ohm + m.viscous;
+        let drive = m.k_t * v / m.resistance_ohm;
+        let free = (self.omega + dt / m.inertia * drive) / (1.0 + dt / m.inertia * damping);
+        let coulomb_dv = m.coulomb_nm * dt / m.inertia;
+        self.omega = if free.abs() <= coulomb_dv {
+            // Dry friction holds the wheel (or stops it within this step).
+            0.0
+        } else {
+            free - coulomb_dv * free.signum()
+        };
+        self.current_a = (v - m.k_t * self.omega) / m.resistance_ohm;
+    }
+
+    /// Rim speed, m/s.
+    pub fn rim_speed(&self, radius: f64) -> f64 {
+        self.omega * radius
+    }
+
+    /// The tyre pushed the floor with impulse `j` (N·s, along the heading): the wheel slows by it.
+    pub fn apply_tyre(&mut self, m: &MotorSpec, radius: f64, j: f64) {
+        self.omega -= j * radius / m.inertia;
+    }
+
+    /// Advances the angle by the step's rotation and reports each encoder edge crossed as the
+    /// fraction of the step at which it happened.
+    pub fn advance(
+        &mut self,
+        spec: &RobotSpec,
+        omega_start: f64,
+        dt: f64,
+        mut edge: impl FnMut(f64),
+    ) {
+        let start = self.angle;
+        let end = start + 0.5 * (omega_start + self.omega) * dt;
+        self.angle = end;
+        if end == start {
+            return;
+        }
+        let pair = 2.0 * std::f64::consts::TAU / f64::from(spec.encoder_edges_per_rev.max(2));
+        let black = pair * spec.encoder_black_fraction.clamp(0.05, 0.95);
+        let (lo, hi) = if end > start {
+            (start, end)
+        } else {
+            (end, start)
+        };
+        let mut k = (lo / pair).floor();
+        while k * pair <= hi {
+            for pos in [k * pair, k * pair + black] {
+                if pos > lo && pos <= hi {
+                    edge(((pos - start) / (end - start)).clamp(0.0, 1.0));
+                }
+            }
+            k += 1.0;
+        }
+    }
+}
+
+/// Inverse effective mass of a rigid body at a point offset `r` from its centre, along unit `n`.
+pub fn inverse_mass_along(mass: f64, inertia: f64, r: [f64; 2], n: [f64; 2]) -> f64 {
+    let cross = r[0] * n[1] - r[1] * n[0];
+    1.0 / mass + cross * cross / inertia
+}
+
+/// Impulse along the heading that makes the contact point move with the rim, shared between the
+/// body (inverse effective mass `k_body`) and the wheel, before the friction limit.
+pub fn grip_impulse(
+    rim_speed: f64,
+    ground_speed: f64,
+    k_body: f64,
+    m: &MotorSpec,
+    radius: f64,
+) -> f64 {
+    let k_wheel = radius * radius / m.inertia;
+    (rim_speed - ground_speed) / (k_body + k_wheel)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn free_speed(volts: f64, duty: f64) -> f64 {
+        let spec = RobotSpec::default();
+        let mut w = WheelState::default();
+        for _ in 0..2000 {
+            w.drive(&spec.motor, duty, volts, 0.001);
+        }
+        w.rim_speed(spec.wheel_radius_m())
+    }
+
+    #[test]
+    fn speed_saturates_and_follows_the_battery() {
+        let full = free_speed(4.1, 1.0);
+        assert!((0.45..0.75).contains(&full), "free speed {full}");
+        let sagging = free_speed(3.5, 1.0);
+        assert!(sagging < full * 0.9, "{sagging} vs {full}");
+        let half = free_speed(4.1, 0.5);
+        assert!(half < full * 0.55 && half > full * 0.35, "{half}");
+        assert_eq!(
+            free_speed(4.1, 0.02),
+            0.0,
+            "dry friction holds a wheel at tiny duty"
+        );
+        assert!(free_speed(4.1, -1.0) < -0.45);
+    }
+
+    #[test]
+    fn mechanical_time_constant_is_tens_of_ms() {
+        let spec = RobotSpec::default();
+        let mut w = WheelState::default();
+        let full = free_speed(4.1, 1.0);
+        let mut t = 0;
+        while w.rim_speed(spec.wheel_radius_m()) < 0.632 * full {
+            w.drive(&spec.motor, 1.0, 4.1, 0.001);
+            t += 1;
+        }
+        assert!((10..40).contains(&t), "{t} ms");
+    }
+
+    #[test]
+    fn edges_alternate_narrow_and_wide_and_count_forty_per_turn() {
+        let spec = RobotSpec::default();
+        let mut w = WheelState {
+            omega: 10.0,
+            ..Default::default()
+        };
+        let mut times = Vec::new();
+        let mut t = 0.0;
+        let dt = 1e-4;
+        while w.angle < std::f64::consts::TAU - 1e-9 {
+            let o = w.omega;
+            w.advance(&spec, o, dt, |f| times.push(t + f * dt));
+            t += dt;
+        }
+        assert_eq!(times.len(), 40);
+        let p: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(
+            (p[1] / p[2] - 1.5).abs() < 0.05 || (p[2] / p[1] - 1.5).abs() < 0.05,
+            "{p:?}"
+        );
+    }
+}

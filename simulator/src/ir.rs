@@ -1,0 +1,368 @@
+//! Infrared light between robots (thesis ch. 7): directed LEDs with ±15° cones and power-dependent
+//! reach, wide-angle front and rear receivers, line of sight, and reflections off anything in the
+//! cone (walls, boxes, other robots) back to the sender's own receiver.
+//!
+//! Geometry is analytic (rays against oriented boxes) over a uniform grid of robots, so each
+//! transmission looks only at robots within reach.
+
+use firmware::hal::Side;
+
+/// An oriented rectangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Obb {
+    /// Centre, metres.
+    pub center: [f64; 2],
+    /// Half length along the heading and half width, metres.
+    pub half: [f64; 2],
+    /// Heading, radians.
+    pub angle: f64,
+}
+
+impl Obb {
+    /// Distance along the unit ray `dir` from `origin` to where it enters this box, if it does
+    /// within `max`; a ray starting inside reports 0.
+    pub fn ray(&self, origin: [f64; 2], dir: [f64; 2], max: f64) -> Option<f64> {
+        let (s, c) = self.angle.sin_cos();
+        let rel = [origin[0] - self.center[0], origin[1] - self.center[1]];
+        // Into the box frame.
+        let o = [rel[0] * c + rel[1] * s, -rel[0] * s + rel[1] * c];
+        let d = [dir[0] * c + dir[1] * s, -dir[0] * s + dir[1] * c];
+        let mut t0 = 0.0f64;
+        let mut t1 = max;
+        for a in 0..2 {
+            if d[a].abs() < 1e-12 {
+                if o[a].abs() > self.half[a] {
+                    return None;
+                }
+            } else {
+                let inv = 1.0 / d[a];
+                let (mut near, mut far) =
+                    ((-self.half[a] - o[a]) * inv, (self.half[a] - o[a]) * inv);
+                if near > far {
+                    std::mem::swap(&mut near, &mut far);
+                }
+                t0 = t0.max(near);
+                t1 = t1.min(far);
+                if t0 > t1 {
+                    return None;
+                }
+            }
+        }
+        Some(t0)
+    }
+
+    /// A point at `forward` metres along the heading from the centre.
+    pub fn ahead(&self, forward: f64) -> [f64; 2] {
+        let (s, c) = self.angle.sin_cos();
+        [self.center[0] + forward * c, self.center[1] + forward * s]
+    }
+}
+
+/// Robot indices bucketed by position, rebuilt each step.
+#[derive(Clone, Debug, Default)]
+pub struct Grid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    cells: Vec<Vec<u32>>,
+}
+
+impl Grid {
+    /// Buckets `centers` into cells of `cell` metres covering `[0, w] × [0, h]`.
+    pub fn rebuild(&mut self, w: f64, h: f64, cell: f64, centers: impl Iterator<Item = [f64; 2]>) {
+        self.cell = cell.max(1e-3);
+        self.cols = ((w / self.cell).ceil() as usize).max(1);
+        self.rows = ((h / self.cell).ceil() as usize).max(1);
+        self.cells.resize_with(self.cols * self.rows, Vec::new);
+        for c in &mut self.cells {
+            c.clear();
+        }
+        for (i, p) in centers.enumerate() {
+            let k = self.index(p);
+            self.cells[k].push(i as u32);
+        }
+    }
+
+    fn clamp_cell(&self, p: [f64; 2]) -> (usize, usize) {
+        let cx = ((p[0] / self.cell).floor().max(0.0) as usize).min(self.cols - 1);
+        let cy = ((p[1] / self.cell).floor().max(0.0) as usize).min(self.rows - 1);
+        (cx, cy)
+    }
+
+    fn index(&self, p: [f64; 2]) -> usize {
+        let (cx, cy) = self.clamp_cell(p);
+        cy * self.cols + cx
+    }
+
+    /// Calls `f` with every robot bucketed within `radius` of `p` (a superset, in index order).
+    pub fn near(&self, p: [f64; 2], radius: f64, mut f: impl FnMut(usize)) {
+        if self.cells.is_empty() {
+            return;
+        }
+        let (x0, y0) = self.clamp_cell([p[0] - radius, p[1] - radius]);
+        let (x1, y1) = self.clamp_cell([p[0] + radius, p[1] + radius]);
+        for cy in y0..=y1 {
+            for cx in x0..=x1 {
+                for &i in &self.cells[cy * self.cols + cx] {
+                    f(i as usize);
+                }
+            }
+        }
+    }
+}
+
+/// What the world looks like to IR light.
+pub struct Scene<'a> {
+    /// Every robot's body.
+    pub robots: &'a [Obb],
+    /// Every box.
+    pub obstacles: &'a [Obb],
+    /// Arena size; walls stand on its border.
+    pub arena: [f64; 2],
+    /// Robots bucketed by position.
+    pub grid: &'a Grid,
+}
+
+/// One transmission: which LED of which robot, and how far its power level reaches.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Beam {
+    /// Transmitting robot.
+    pub robot: usize,
+    /// LED direction relative to the robot's heading, radians.
+    pub led_angle: f64,
+    /// Reach at this power level, metres.
+    pub range: f64,
+    /// Half-angle of the LED's cone, radians.
+    pub cone_half: f64,
+}
+
+/// Where a beam's frame arrives.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Arrivals {
+    /// Other robots' receivers that got the frame.
+    pub robots: Vec<(usize, Side)>,
+    /// The sender's own receiver that got its reflection, if any.
+    pub reflection: Option<Side>,
+}
+
+/// Receivers accept light up to this angle off their axis (wide-angle remote-control receivers).
+const RECEIVER_HALF_ANGLE: f64 = 80.0 * std::f64::consts::PI / 180.0;
+/// Receiver aperture radius, widening the cone test for near receivers.
+const RECEIVER_RADIUS: f64 = 0.003;
+
+/// Follows one beam through the scene.
+pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
+    let me = &scene.robots[beam.robot];
+    let front = beam.led_angle.cos() >= 0.0;
+    let origin = me.ahead(if front { me.half[0] } else { -me.half[0] });
+    let dir_angle = me.angle + beam.led_angle;
+    let dir = [dir_angle.cos(), dir_angle.sin()];
+    let mut out = Arrivals::default();
+
+    scene.grid.near(origin, beam.range + 0.05, |j| {
+        if j == beam.robot {
+            return;
+        }
+        let other = &scene.robots[j];
+        for (side, sign) in [(Side::Front, 1.0), (Side::Rear, -1.0)] {
+            let rx = other.ahead(sign * other.half[0]);
+            let v = [rx[0] - origin[0], rx[1] - origin[1]];
+            let d = v[0].hypot(v[1]);
+            if d > beam.range || d < 1e-9 {
+                continue;
+            }
+            let off_axis = angle_between(dir, v);
+            if off_axis > beam.cone_half + (RECEIVER_RADIUS / d).atan() {
+                continue;
+            }
+            let facing = [sign * other.angle.cos(), sign * other.angle.sin()];
+            if angle_between(facing, [-v[0], -v[1]]) > RECEIVER_HALF_ANGLE {
+                continue;
+            }
+            let unit = [v[0] / d, v[1] / d];
+            if blocked(scene, origin, unit, d - 1e-4, beam.robot, j) {
+                continue;
+            }
+            out.robots.push((j, side));
+        }
+    });
+
+    // Reflection: the nearest surface on the axis or the cone's half-width rays, there and back.
+    let mut nearest = f64::INFINITY;
+    for offset in [0.0, -0.5 * beam.cone_half, 0.5 * beam.cone_half] {
+        let a = dir_angle + offset;
+        let d = [a.cos(), a.sin()];
+        if let Some(h) = first_hit(scene, origin, d, beam.range * 0.5, beam.robot) {
+            nearest = nearest.min(h);
+        }
+    }
+    if 2.0 * nearest <= beam.range {
+        out.reflection = Some(if front { Side::Front } else { Side::Rear });
+    }
+    out
+}
+
+fn angle_between(a: [f64; 2], b: [f64; 2]) -> f64 {
+    let dot = a[0] * b[0] + a[1] * b[1];
+    let cross = a[0] * b[1] - a[1] * b[0];
+    cross.atan2(dot).abs()
+}
+
+fn blocked(
+    scene: &Scene<'_>,
+    origin: [f64; 2],
+    dir: [f64; 2],
+    dist: f64,
+    a: usize,
+    b: usize,
+) -> bool {
+    if scene
+        .obstacles
+        .iter()
+        .any(|o| o.ray(origin, dir, dist).is_some())
+    {
+        return true;
+    }
+    let mut hit = false;
+    scene.grid.near(origin, dist, |k| {
+        if !hit && k != a && k != b {
+            hit = scene.robots[k].ray(origin, dir, dist).is_some();
+        }
+    });
+    hit
+}
+
+fn first_hit(
+    scene: &Scene<'_>,
+    origin: [f64; 2],
+    dir: [f64; 2],
+    max: f64,
+    me: usize,
+) -> Option<f64> {
+    let mut best = wall_distance(scene.arena, origin, dir).filter(|&d| d <= max);
+    let mut take = |h: Option<f64>| {
+        if let Some(h) = h {
+            if best.is_none_or(|b| h < b) {
+                best = Some(h);
+            }
+        }
+    };
+    for o in scene.obstacles {
+        take(o.ray(origin, dir, max));
+    }
+    scene.grid.near(origin, max, |k| {
+        if k != me {
+            take(scene.robots[k].ray(origin, dir, max));
+        }
+    });
+    best
+}
+
+/// Distance from a point inside the arena to its border along `dir`.
+fn wall_distance(arena: [f64; 2], p: [f64; 2], dir: [f64; 2]) -> Option<f64> {
+    let mut t = f64::INFINITY;
+    for a in 0..2 {
+        if dir[a] > 1e-12 {
+            t = t.min((arena[a] - p[a]) / dir[a]);
+        } else if dir[a] < -1e-12 {
+            t = t.min(-p[a] / dir[a]);
+        }
+    }
+    (t.is_finite() && t >= 0.0).then_some(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn robot(x: f64, y: f64, deg: f64) -> Obb {
+        Obb {
+            center: [x, y],
+            half: [0.024, 0.016],
+            angle: deg.to_radians(),
+        }
+    }
+
+    fn run(robots: &[Obb], obstacles: &[Obb], beam: Beam) -> Arrivals {
+        let mut grid = Grid::default();
+        grid.rebuild(1.0, 1.0, 0.16, robots.iter().map(|r| r.center));
+        let scene = Scene {
+            robots,
+            obstacles,
+            arena: [1.0, 1.0],
+            grid: &grid,
+        };
+        propagate(&scene, &beam)
+    }
+
+    fn beam(robot: usize, led_deg: f64, range: f64) -> Beam {
+        Beam {
+            robot,
+            led_angle: led_deg.to_radians(),
+            range,
+            cone_half: 15f64.to_radians(),
+        }
+    }
+
+    #[test]
+    fn ray_enters_an_oriented_box() {
+        let b = robot(0.5, 0.5, 90.0);
+        let h = b.ray([0.5, 0.3], [0.0, 1.0], 1.0).unwrap();
+        assert!((h - (0.2 - 0.024)).abs() < 1e-9);
+        assert_eq!(b.ray([0.5, 0.3], [1.0, 0.0], 1.0), None);
+    }
+
+    #[test]
+    fn robots_facing_each_other_hear_each_other_front_to_front() {
+        let robots = [robot(0.4, 0.5, 0.0), robot(0.46, 0.5, 180.0)];
+        let a = run(&robots, &[], beam(0, 0.0, 0.03));
+        assert_eq!(a.robots, vec![(1, Side::Front)]);
+        assert_eq!(
+            a.reflection,
+            Some(Side::Front),
+            "the other body reflects too"
+        );
+        // A side LED at ±30° misses a receiver straight ahead.
+        assert!(run(&robots, &[], beam(0, 30.0, 0.03)).robots.is_empty());
+    }
+
+    #[test]
+    fn range_limits_reception() {
+        let robots = [robot(0.3, 0.5, 0.0), robot(0.45, 0.5, 180.0)];
+        assert!(run(&robots, &[], beam(0, 0.0, 0.06)).robots.is_empty());
+        assert_eq!(
+            run(&robots, &[], beam(0, 0.0, 0.15)).robots,
+            vec![(1, Side::Front)]
+        );
+    }
+
+    #[test]
+    fn a_box_between_blocks_the_frame_and_reflects_it() {
+        let robots = [robot(0.3, 0.5, 0.0), robot(0.42, 0.5, 180.0)];
+        let wall = Obb {
+            center: [0.36, 0.5],
+            half: [0.005, 0.05],
+            angle: 0.0,
+        };
+        let a = run(&robots, &[wall], beam(0, 0.0, 0.1));
+        assert!(a.robots.is_empty());
+        assert_eq!(a.reflection, Some(Side::Front));
+    }
+
+    #[test]
+    fn a_wall_reflects_and_no_robot_is_heard() {
+        let robots = [robot(0.97, 0.5, 0.0)];
+        let a = run(&robots, &[], beam(0, 0.0, 0.03));
+        assert!(a.robots.is_empty());
+        assert_eq!(a.reflection, Some(Side::Front));
+        let a = run(&robots, &[], beam(0, 180.0, 0.03));
+        assert_eq!(a.reflection, None, "nothing behind within reach");
+    }
+
+    #[test]
+    fn rear_receiver_hears_a_follower() {
+        let robots = [robot(0.5, 0.5, 0.0), robot(0.44, 0.5, 0.0)];
+        let a = run(&robots, &[], beam(1, 0.0, 0.03));
+        assert_eq!(a.robots, vec![(0, Side::Rear)]);
+    }
+}

@@ -1,0 +1,15 @@
+#![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
+
+pub mod board;
+pub mod drive;
+pub mod ir;
+pub mod link;
+pub mod runtime;
+pub mod sim;
+pub mod spec;
+pub mod world;
+
+pub use sim::{SimConfig, Simulation};
+pub use spec::RobotSpec;
+pub use world::World;

@@ -1,0 +1,246 @@
+//! The simulation as an async service: a task steps the world, paced either by a tokio clock
+//! (faster than real time under a paused test clock, or as fast as the machine goes) or by the wall
+//! clock, and each robot's link appears as an async packet channel ([`LinkEnd`]).
+//!
+//! Under tokio's paused clock (`start_paused(true)`) the stepping task sleeps one `dt` per step, so
+//! simulated time advances only when every other task is idle: lockstep, deterministic, and as
+//! fast as the host side can keep up.
+
+use std::time::Duration;
+
+use tokio::sync::{mpsc, oneshot};
+
+use crate::sim::{Pose, Simulation};
+
+/// How the stepping task keeps time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pace {
+    /// One tokio `sleep(dt)` per step: real time on a real clock, instant under a paused clock.
+    TokioClock,
+    /// Steps as fast as possible, yielding to other tasks between steps.
+    Unpaced,
+    /// Steps in batches and sleeps until the wall clock catches up.
+    WallClock,
+}
+
+enum Command {
+    Connect(usize),
+    Disconnect(usize),
+    SetLinkUp(usize, bool),
+    Truth(oneshot::Sender<Truth>),
+    Stop,
+}
+
+/// Ground truth at one instant, for tests and reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Truth {
+    /// Simulated time.
+    pub now: Duration,
+    /// Robot ids and true poses.
+    pub robots: Vec<(u16, Pose)>,
+    /// True distance each robot drove, metres.
+    pub distances_m: Vec<f64>,
+    /// Box poses.
+    pub obstacles: Vec<Pose>,
+    /// How far each box moved from its start, metres.
+    pub obstacle_displacements_m: Vec<f64>,
+    /// Robot–robot contacts so far.
+    pub robot_collisions: usize,
+    /// Robot–wall contacts so far.
+    pub wall_contacts: usize,
+}
+
+/// The host end of one robot's link.
+pub struct LinkEnd {
+    /// Robot id.
+    pub robot_id: u16,
+    index: usize,
+    to_robot: mpsc::UnboundedSender<Vec<u8>>,
+    from_robot: mpsc::UnboundedReceiver<Vec<u8>>,
+    commands: mpsc::UnboundedSender<Command>,
+}
+
+impl LinkEnd {
+    /// Opens the link: the robot answers with its hello.
+    pub fn connect(&self) {
+        let _ = self.commands.send(Command::Connect(self.index));
+    }
+
+    /// Closes the link; the robot's packets go nowhere until it is opened again.
+    pub fn disconnect(&self) {
+        let _ = self.commands.send(Command::Disconnect(self.index));
+    }
+
+    /// Sends one packet's bytes to the robot; `false` once the simulation has stopped.
+    pub fn send(&self, packet: Vec<u8>) -> bool {
+        self.to_robot.send(packet).is_ok()
+    }
+
+    /// The next packet from the robot; `None` once the simulation has stopped.
+    pub async fn recv(&mut self) -> Option<Vec<u8>> {
+        self.from_robot.recv().await
+    }
+
+    /// A packet from the robot if one is waiting.
+    pub fn try_recv(&mut self) -> Option<Vec<u8>> {
+        self.from_robot.try_recv().ok()
+    }
+
+    /// Splits into a sender half and a receiver half for two tasks.
+    pub fn split(self) -> (LinkSender, mpsc::UnboundedReceiver<Vec<u8>>) {
+        (
+            LinkSender {
+                robot_id: self.robot_id,
+                index: self.index,
+                to_robot: self.to_robot,
+                commands: self.commands,
+            },
+            self.from_robot,
+        )
+    }
+}
+
+/// The sending half of a [`LinkEnd`].
+#[derive(Clone)]
+pub struct LinkSender {
+    /// Robot id.
+    pub robot_id: u16,
+    index: usize,
+    to_robot: mpsc::UnboundedSender<Vec<u8>>,
+    commands: mpsc::UnboundedSender<Command>,
+}
+
+impl LinkSender {
+    /// Sends one packet's bytes to the robot.
+    pub fn send(&self, packet: Vec<u8>) -> bool {
+        self.to_robot.send(packet).is_ok()
+    }
+    /// Opens the link.
+    pub fn connect(&self) {
+        let _ = self.commands.send(Command::Connect(self.index));
+    }
+    /// Closes the link.
+    pub fn disconnect(&self) {
+        let _ = self.commands.send(Command::Disconnect(self.index));
+    }
+}
+
+/// Control of a running simulation.
+#[derive(Clone)]
+pub struct SimHandle {
+    commands: mpsc::UnboundedSender<Command>,
+}
+
+impl SimHandle {
+    /// Cuts (`false`) or restores (`true`) robot `index`'s link.
+    pub fn set_link_up(&self, index: usize, up: bool) {
+        let _ = self.commands.send(Command::SetLinkUp(index, up));
+    }
+
+    /// Ground truth now; `None` once the simulation has stopped.
+    pub async fn truth(&self) -> Option<Truth> {
+        let (tx, rx) = oneshot::channel();
+        self.commands.send(Command::Truth(tx)).ok()?;
+        rx.await.ok()
+    }
+
+    /// Stops the stepping task.
+    pub fn stop(&self) {
+        let _ = self.commands.send(Command::Stop);
+    }
+}
+
+/// Ground truth of a simulation.
+pub fn truth(sim: &Simulation) -> Truth {
+    use crate::sim::ContactKind;
+    Truth {
+        now: sim.now(),
+        robots: sim.robots().iter().map(|r| (r.id(), r.pose())).collect(),
+        distances_m: sim.robots().iter().map(|r| r.distance_m()).collect(),
+        obstacles: sim.obstacle_poses(),
+        obstacle_displacements_m: sim.obstacle_displacements(),
+        robot_collisions: sim.robot_collisions(),
+        wall_contacts: sim
+            .contacts()
+            .iter()
+            .filter(|c| matches!(c.kind, ContactKind::RobotWall(_)))
+            .count(),
+    }
+}
+
+/// Starts stepping `sim` on the current tokio runtime; returns its control handle and one link end
+/// per robot (not yet connected).
+pub fn spawn(
+    sim: Simulation,
+    pace: Pace,
+) -> (SimHandle, Vec<LinkEnd>, tokio::task::JoinHandle<Simulation>) {
+    let (cmd_tx, cmd_rx) = mpsc::unbounded_channel();
+    let mut ends = Vec::new();
+    let mut to_robot_rx = Vec::new();
+    let mut from_robot_tx = Vec::new();
+    for (i, r) in sim.robots().iter().enumerate() {
+        let (to_tx, to_rx) = mpsc::unbounded_channel();
+        let (from_tx, from_rx) = mpsc::unbounded_channel();
+        ends.push(LinkEnd {
+            robot_id: r.id(),
+            index: i,
+            to_robot: to_tx,
+            from_robot: from_rx,
+            commands: cmd_tx.clone(),
+        });
+        to_robot_rx.push(to_rx);
+        from_robot_tx.push(from_tx);
+    }
+    let task = tokio::spawn(step_loop(sim, pace, cmd_rx, to_robot_rx, from_robot_tx));
+    (SimHandle { commands: cmd_tx }, ends, task)
+}
+
+async fn step_loop(
+    mut sim: Simulation,
+    pace: Pace,
+    mut commands: mpsc::UnboundedReceiver<Command>,
+    mut to_robot: Vec<mpsc::UnboundedReceiver<Vec<u8>>>,
+    from_robot: Vec<mpsc::UnboundedSender<Vec<u8>>>,
+) -> Simulation {
+    let dt = sim.dt();
+    let wall_start = tokio::time::Instant::now();
+    let sim_start = sim.now();
+    loop {
+        while let Ok(c) = commands.try_recv() {
+            match c {
+                Command::Connect(i) => sim.connect(i),
+                Command::Disconnect(i) => sim.disconnect(i),
+                Command::SetLinkUp(i, up) => sim.set_link_up(i, up),
+                Command::Truth(reply) => {
+                    let _ = reply.send(truth(&sim));
+                }
+                Command::Stop => return sim,
+            }
+        }
+        for (i, rx) in to_robot.iter_mut().enumerate() {
+            while let Ok(p) = rx.try_recv() {
+                sim.host_send(i, p);
+            }
+        }
+        sim.step();
+        for (i, tx) in from_robot.iter().enumerate() {
+            while let Some(p) = sim.host_recv(i) {
+                let _ = tx.send(p);
+            }
+        }
+        match pace {
+            Pace::TokioClock => tokio::time::sleep(dt).await,
+            Pace::Unpaced => tokio::task::yield_now().await,
+            Pace::WallClock => {
+                // Sleep in 10 ms batches: finer sleeps cost more than they buy.
+                let ahead = sim.now() - sim_start;
+                let target = wall_start + ahead;
+                if target > tokio::time::Instant::now() + Duration::from_millis(10) {
+                    tokio::time::sleep_until(target).await;
+                } else {
+                    tokio::task::yield_now().await;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,800 @@
+//! The simulation: robots running the unmodified firmware on [`SimBoard`]s, their bodies in rapier2d,
+//! boxes with floor friction, walls, IR light, links, a simulated clock and ground truth.
+//!
+//! One [`Simulation::step`] of `dt` (1 ms by default):
+//! 1. each robot's motors integrate from the duty its firmware set, the tyres push its body within
+//!    their grip, and the wheels' encoder stripes produce timestamped edges;
+//! 2. rapier resolves contacts and integrates; box floor friction is applied to the result;
+//! 3. the clock advances, sensors are read off the new world (floor under the line sensor, colour,
+//!    acceleration, battery), due link packets are delivered, and every firmware `tick`s;
+//! 4. IR frames the firmware transmitted travel to receivers; outgoing packets enter the links.
+//!
+//! Everything is a function of the world file and the seed: same seed, bit-identical run.
+
+use firmware::hal::{EncoderEdge, IrFrame, Side, Wheel};
+use firmware::{Firmware, Instant};
+use nalgebra::{Point2, Vector2};
+use protocol::settings::Settings;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rapier2d::prelude::*;
+
+use crate::board::SimBoard;
+use crate::drive::{grip_impulse, inverse_mass_along, WheelState};
+use crate::ir::{self, Beam, Grid, Obb, Scene};
+use crate::link::{Link, LinkModel, LinkStats, Piconet};
+use crate::spec::RobotSpec;
+use crate::world::World;
+
+const GRAVITY: f64 = 9.81;
+const WALL_THICKNESS: f32 = 0.02;
+
+/// Options of a simulation run.
+#[derive(Clone, Debug)]
+pub struct SimConfig {
+    /// Seed of every noise and jitter stream (the world's own seed when `None`).
+    pub seed: Option<u64>,
+    /// Physics and firmware tick step.
+    pub dt: std::time::Duration,
+    /// The robot model.
+    pub spec: RobotSpec,
+    /// Settings image every robot boots with (its id is set per robot).
+    pub settings: Settings,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            seed: None,
+            dt: std::time::Duration::from_millis(1),
+            spec: RobotSpec::default(),
+            settings: Settings::default(),
+        }
+    }
+}
+
+/// True pose of a robot or box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pose {
+    /// x, metres.
+    pub x: f64,
+    /// y, metres.
+    pub y: f64,
+    /// Heading, radians, unwrapped (counts whole turns).
+    pub theta: f64,
+}
+
+/// Which pair of things touched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ContactKind {
+    /// Two robots (indices).
+    RobotRobot(usize, usize),
+    /// A robot and the arena wall.
+    RobotWall(usize),
+    /// A robot and a box (robot index, box index).
+    RobotObstacle(usize, usize),
+}
+
+/// A contact that began at a time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact {
+    /// What touched.
+    pub kind: ContactKind,
+    /// When it began, seconds of simulated time.
+    pub at_s: f64,
+}
+
+/// One simulated PocketBot2.
+pub struct SimRobot {
+    id: u16,
+    firmware: Firmware<SimBoard>,
+    body: RigidBodyHandle,
+    wheels: [WheelState; 2],
+    charge_ah: f64,
+    temperature_c: f64,
+    current_a: f64,
+    last_velocity: Vector2<f64>,
+    link: Link,
+    connected: bool,
+    distance_m: f64,
+    pose: Pose,
+}
+
+impl SimRobot {
+    /// The robot id.
+    pub fn id(&self) -> u16 {
+        self.id
+    }
+    /// The firmware, for inspection.
+    pub fn firmware(&self) -> &Firmware<SimBoard> {
+        &self.firmware
+    }
+    /// True pose.
+    pub fn pose(&self) -> Pose {
+        self.pose
+    }
+    /// True distance driven, metres.
+    pub fn distance_m(&self) -> f64 {
+        self.distance_m
+    }
+    /// Link counters.
+    pub fn link_stats(&self) -> LinkStats {
+        self.link.stats()
+    }
+    /// Whether the link is up.
+    pub fn link_up(&self) -> bool {
+        self.link.is_up()
+    }
+    /// Battery terminal voltage, volts.
+    pub fn battery_v(&self) -> f64 {
+        f64::from(self.firmware.board().battery_mv) / 1000.0
+    }
+}
+
+struct SimObstacle {
+    body: RigidBodyHandle,
+    start: Point2<f64>,
+    friction: f64,
+    half: [f64; 2],
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Owner {
+    Robot(usize),
+    Obstacle(usize),
+    Wall,
+}
+
+/// The whole simulated world.
+pub struct Simulation {
+    world: World,
+    spec: RobotSpec,
+    link_model: LinkModel,
+    dt_ns: u64,
+    now_ns: u64,
+    robots: Vec<SimRobot>,
+    obstacles: Vec<SimObstacle>,
+    piconets: Vec<Piconet>,
+    bodies: RigidBodySet,
+    colliders: ColliderSet,
+    owners: Vec<(ColliderHandle, Owner)>,
+    pipeline: PhysicsPipeline,
+    params: IntegrationParameters,
+    islands: IslandManager,
+    broad_phase: DefaultBroadPhase,
+    narrow_phase: NarrowPhase,
+    impulse_joints: ImpulseJointSet,
+    multibody_joints: MultibodyJointSet,
+    ccd: CCDSolver,
+    grid: Grid,
+    robot_boxes: Vec<Obb>,
+    obstacle_boxes: Vec<Obb>,
+    active_contacts: Vec<ContactKind>,
+    contacts: Vec<Contact>,
+}
+
+impl Simulation {
+    /// Builds the world and boots every robot's firmware.
+    pub fn new(world: World, config: SimConfig) -> Self {
+        let seed = config.seed.or(world.seed).unwrap_or(1);
+        let spec = config.spec;
+        let mut bodies = RigidBodySet::new();
+        let mut colliders = ColliderSet::new();
+        let mut owners = Vec::new();
+        let (w, h) = (world.arena.width_m as f32, world.arena.height_m as f32);
+        for (cx, cy, hx, hy) in [
+            (
+                w * 0.5,
+                -WALL_THICKNESS,
+                w * 0.5 + 2.0 * WALL_THICKNESS,
+                WALL_THICKNESS,
+            ),
+            (
+                w * 0.5,
+                h + WALL_THICKNESS,
+                w * 0.5 + 2.0 * WALL_THICKNESS,
+                WALL_THICKNESS,
+            ),
+            (
+                -WALL_THICKNESS,
+                h * 0.5,
+                WALL_THICKNESS,
+                h * 0.5 + 2.0 * WALL_THICKNESS,
+            ),
+            (
+                w + WALL_THICKNESS,
+                h * 0.5,
+                WALL_THICKNESS,
+                h * 0.5 + 2.0 * WALL_THICKNESS,
+            ),
+        ] {
+            let c = colliders.insert(
+                ColliderBuilder::cuboid(hx, hy)
+                    .translation(vector![cx, cy])
+                    .friction(0.3)
+                    .build(),
+            );
+            owners.push((c, Owner::Wall));
+        }
+        let mut obstacles = Vec::new();
+        for (i, o) in world.obstacles.iter().enumerate() {
+            let body = bodies.insert(
+                RigidBodyBuilder::dynamic()
+                    .translation(vector![o.position.x as f32, o.position.y as f32])
+                    .rotation(o.heading_rad as f32)
+                    .can_sleep(false)
+                    .build(),
+            );
+            let c = colliders.insert_with_parent(
+                ColliderBuilder::cuboid(o.width_m as f32 * 0.5, o.height_m as f32 * 0.5)
+                    .mass(o.mass_kg as f32)
+                    .friction(0.4)
+                    .restitution(0.0)
+                    .build(),
+                body,
+                &mut bodies,
+            );
+            owners.push((c, Owner::Obstacle(i)));
+            obstacles.push(SimObstacle {
+                body,
+                start: o.position,
+                friction: o.friction,
+                half: [o.width_m * 0.5, o.height_m * 0.5],
+            });
+        }
+        let mut robots = Vec::new();
+        for (i, start) in world.robots.iter().enumerate() {
+            let body = bodies.insert(
+                RigidBodyBuilder::dynamic()
+                    .translation(vector![start.position.x as f32, start.position.y as f32])
+                    .rotation(start.heading_rad as f32)
+                    .can_sleep(false)
+                    .build(),
+            );
+            let c = colliders.insert_with_parent(
+                ColliderBuilder::cuboid(spec.length_m as f32 * 0.5, spec.width_m as f32 * 0.5)
+                    .mass(spec.mass_kg as f32)
+                    .friction(0.3)
+                    .restitution(0.0)
+                    .build(),
+                body,
+                &mut bodies,
+            );
+            owners.push((c, Owner::Robot(i)));
+            let mut settings = config.settings;
+            settings.identity.robot_id = start.id;
+            let stream = seed ^ (u64::from(start.id) << 32);
+            let mut board = SimBoard::new(
+                Some(settings.as_bytes().to_vec()),
+                ChaCha8Rng::seed_from_u64(stream),
+            );
+            board.ambient = world.light.ambient as f32;
+            board.noise = world.light.noise as f32;
+            board.line_gain = spec.line_gain as f32;
+            board.ambient_gain = spec.ambient_gain as f32;
+            robots.push(SimRobot {
+                id: start.id,
+                firmware: Firmware::new(board),
+                body,
+                wheels: [WheelState::default(); 2],
+                charge_ah: spec.battery.capacity_ah * spec.battery.initial_charge,
+                temperature_c: 25.0,
+                current_a: spec.battery.idle_a,
+                last_velocity: Vector2::zeros(),
+                link: Link::new(ChaCha8Rng::seed_from_u64(stream ^ 0x5EED)),
+                connected: false,
+                distance_m: 0.0,
+                pose: Pose {
+                    x: start.position.x,
+                    y: start.position.y,
+                    theta: start.heading_rad,
+                },
+            });
+        }
+        owners.sort_by_key(|&(c, _)| c.into_raw_parts());
+        let per = world.link.robots_per_piconet.max(1) as usize;
+        let link_model = LinkModel {
+            latency_s: world.link.latency_ms * 1e-3,
+            jitter_s: world.link.jitter_ms * 1e-3,
+            loss: world.link.loss,
+            bandwidth_bps: world.link.bandwidth_kbps * 1e3,
+            robots_per_piconet: per,
+        };
+        let piconets = vec![Piconet::default(); robots.len().div_ceil(per).max(1)];
+        let mut params = IntegrationParameters {
+            dt: config.dt.as_secs_f32(),
+            ..IntegrationParameters::default()
+        };
+        // Centimetre scale: allowed penetration and sleep thresholds shrink to suit 48 mm robots.
+        params.length_unit = 0.01;
+        let mut sim = Self {
+            obstacle_boxes: Vec::with_capacity(obstacles.len()),
+            robot_boxes: Vec::with_capacity(robots.len()),
+            world,
+            spec,
+            link_model,
+            dt_ns: config.dt.as_nanos() as u64,
+            now_ns: 0,
+            robots,
+            obstacles,
+            piconets,
+            bodies,
+            colliders,
+            owners,
+            pipeline: PhysicsPipeline::new(),
+            params,
+            islands: IslandManager::new(),
+            broad_phase: DefaultBroadPhase::new(),
+            narrow_phase: NarrowPhase::new(),
+            impulse_joints: ImpulseJointSet::new(),
+            multibody_joints: MultibodyJointSet::new(),
+            ccd: CCDSolver::new(),
+            grid: Grid::default(),
+            active_contacts: Vec::new(),
+            contacts: Vec::new(),
+        };
+        sim.read_sensors();
+        sim
+    }
+
+    /// The world this simulation was built from.
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The robot model.
+    pub fn spec(&self) -> &RobotSpec {
+        &self.spec
+    }
+
+    /// Simulated time since start.
+    pub fn now(&self) -> std::time::Duration {
+        std::time::Duration::from_nanos(self.now_ns)
+    }
+
+    /// The step length.
+    pub fn dt(&self) -> std::time::Duration {
+        std::time::Duration::from_nanos(self.dt_ns)
+    }
+
+    /// Every robot, in world-file order.
+    pub fn robots(&self) -> &[SimRobot] {
+        &self.robots
+    }
+
+    /// Index of the robot with `id`.
+    pub fn robot_index(&self, id: u16) -> Option<usize> {
+        self.robots.iter().position(|r| r.id == id)
+    }
+
+    /// True pose of each box.
+    pub fn obstacle_poses(&self) -> Vec<Pose> {
+        self.obstacles
+            .iter()
+            .map(|o| {
+                let b = &self.bodies[o.body];
+                Pose {
+                    x: f64::from(b.translation().x),
+                    y: f64::from(b.translation().y),
+                    theta: f64::from(b.rotation().angle()),
+                }
+            })
+            .collect()
+    }
+
+    /// How far each box moved from where it started, metres.
+    pub fn obstacle_displacements(&self) -> Vec<f64> {
+        self.obstacles
+            .iter()
+            .zip(self.obstacle_poses())
+            .map(|(o, p)| (p.x - o.start.x).hypot(p.y - o.start.y))
+            .collect()
+    }
+
+    /// Every contact that began so far.
+    pub fn contacts(&self) -> &[Contact] {
+        &self.contacts
+    }
+
+    /// Robot–robot contacts that began so far.
+    pub fn robot_collisions(&self) -> usize {
+        self.contacts
+            .iter()
+            .filter(|c| matches!(c.kind, ContactKind::RobotRobot(..)))
+            .count()
+    }
+
+    /// The host end of robot `i`'s link opens: the robot sends its hello.
+    pub fn connect(&mut self, i: usize) {
+        let now = Instant::from_nanos(self.now_ns);
+        let r = &mut self.robots[i];
+        r.connected = true;
+        r.firmware.on_link_connected(now);
+        self.flush_outgoing(i);
+    }
+
+    /// The host end of robot `i`'s link closes; the robot's packets go nowhere.
+    pub fn disconnect(&mut self, i: usize) {
+        self.robots[i].connected = false;
+    }
+
+    /// Cuts (`false`) or restores (`true`) robot `i`'s link, as a fault.
+    pub fn set_link_up(&mut self, i: usize, up: bool) {
+        self.robots[i].link.set_up(up);
+    }
+
+    /// The host sends one packet to robot `i`.
+    pub fn host_send(&mut self, i: usize, packet: Vec<u8>) {
+        let per = self.link_model.robots_per_piconet;
+        let r = &mut self.robots[i];
+        r.link.send_to_robot(
+            self.now_ns,
+            packet,
+            &self.link_model,
+            &mut self.piconets[i / per],
+        );
+    }
+
+    /// The next packet from robot `i` that has arrived at the host.
+    pub fn host_recv(&mut self, i: usize) -> Option<Vec<u8>> {
+        self.robots[i].link.recv_at_host(self.now_ns)
+    }
+
+    /// Runs `steps` steps.
+    pub fn run_steps(&mut self, steps: u64) {
+        for _ in 0..steps {
+            self.step();
+        }
+    }
+
+    /// Runs for at least `d` of simulated time.
+    pub fn run_for(&mut self, d: std::time::Duration) {
+        let end = self.now_ns + d.as_nanos() as u64;
+        while self.now_ns < end {
+            self.step();
+        }
+    }
+
+    /// Advances the world by one step.
+    pub fn step(&mut self) {
+        let dt = self.dt_ns as f64 * 1e-9;
+        let t0 = self.now_ns;
+        for i in 0..self.robots.len() {
+            self.drive_robot(i, t0, dt);
+        }
+        let obstacle_start: Vec<(Vector<Real>, Real)> = self
+            .obstacles
+            .iter()
+            .map(|o| {
+                let b = &self.bodies[o.body];
+                (*b.translation(), b.rotation().angle())
+            })
+            .collect();
+        self.pipeline.step(
+            &vector![0.0, 0.0],
+            &self.params,
+            &mut self.islands,
+            &mut self.broad_phase,
+            &mut self.narrow_phase,
+            &mut self.bodies,
+            &mut self.colliders,
+            &mut self.impulse_joints,
+            &mut self.multibody_joints,
+            &mut self.ccd,
+            &(),
+            &(),
+        );
+        self.floor_friction(&obstacle_start, dt);
+        self.now_ns += self.dt_ns;
+        self.record_contacts();
+        self.read_sensors();
+        let now = Instant::from_nanos(self.now_ns);
+        for i in 0..self.robots.len() {
+            let r = &mut self.robots[i];
+            while let Some(p) = r.link.recv_at_robot(self.now_ns) {
+                r.firmware.on_link_packet(now, &p);
+            }
+            r.firmware.tick(now);
+        }
+        self.propagate_ir(now);
+        for i in 0..self.robots.len() {
+            self.flush_outgoing(i);
+        }
+    }
+
+    fn flush_outgoing(&mut self, i: usize) {
+        let per = self.link_model.robots_per_piconet;
+        let r = &mut self.robots[i];
+        while let Some(p) = r.firmware.pop_packet() {
+            if r.connected {
+                r.link.send_to_host(
+                    self.now_ns,
+                    p.to_vec(),
+                    &self.link_model,
+                    &mut self.piconets[i / per],
+                );
+            }
+        }
+    }
+
+    /// Motors, tyres and encoders of robot `i` over one step starting at `t0`.
+    fn drive_robot(&mut self, i: usize, t0: u64, dt: f64) {
+        let spec = &self.spec;
+        let radius = spec.wheel_radius_m();
+        let r = &mut self.robots[i];
+        let volts = f64::from(r.firmware.board().battery_mv) / 1000.0;
+        let pwm = r.firmware.board().pwm;
+        let omega_start = [r.wheels[0].omega, r.wheels[1].omega];
+        for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
+            w.drive(&spec.motor, f64::from(duty) / 1000.0, volts, dt);
+        }
+        let body = &mut self.bodies[r.body];
+        let mass = f64::from(body.mass());
+        let inertia = f64::from(body.mass_properties().effective_angular_inertia());
+        let theta = f64::from(body.rotation().angle());
+        let (s, c) = theta.sin_cos();
+        let fwd = [c, s];
+        let left = [-s, c];
+        let mut v = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
+        let mut omega = f64::from(body.angvel());
+        let grip = spec.tyre_friction * mass * GRAVITY * 0.5 * dt;
+        for (k, side) in [(0usize, 1.0f64), (1, -1.0)] {
+            let half = side * spec.wheel_gauge_m * 0.5;
+            let arm = [
+                fwd[0] * spec.axle_offset_m + left[0] * half,
+                fwd[1] * spec.axle_offset_m + left[1] * half,
+            ];
+            let vp = [v[0] - omega * arm[1], v[1] + omega * arm[0]];
+            let ground_long = vp[0] * fwd[0] + vp[1] * fwd[1];
+            let ground_lat = vp[0] * left[0] + vp[1] * left[1];
+            let k_long = inverse_mass_along(mass, inertia, arm, fwd);
+            let k_lat = inverse_mass_along(mass, inertia, arm, left);
+            let wheel = &mut r.wheels[k];
+            let mut j_long = grip_impulse(
+                wheel.rim_speed(radius),
+                ground_long,
+                k_long,
+                &spec.motor,
+                radius,
+            );
+            let mut j_lat = -ground_lat / k_lat;
+            let total = j_long.hypot(j_lat);
+            if total > grip {
+                j_long *= grip / total;
+                j_lat *= grip / total;
+            }
+            wheel.apply_tyre(&spec.motor, radius, j_long);
+            let j = [
+                fwd[0] * j_long + left[0] * j_lat,
+                fwd[1] * j_long + left[1] * j_lat,
+            ];
+            v[0] += j[0] / mass;
+            v[1] += j[1] / mass;
+            omega += (arm[0] * j[1] - arm[1] * j[0]) / inertia;
+        }
+        body.set_linvel(vector![v[0] as f32, v[1] as f32], true);
+        body.set_angvel(omega as f32, true);
+        let board = r.firmware.board_mut();
+        for (k, wheel_id) in [(0usize, Wheel::Left), (1, Wheel::Right)] {
+            let capture = spec.capture_hz;
+            let edges = &mut board.edges;
+            r.wheels[k].advance(spec, omega_start[k], dt, |frac| {
+                let t = t0 as f64 * 1e-9 + frac * dt;
+                let ticks = (t * capture).round();
+                let at = Instant::from_nanos((ticks / capture * 1e9).round() as u64);
+                edges.push_back(EncoderEdge {
+                    wheel: wheel_id,
+                    at,
+                });
+            });
+        }
+        let motor_a: f64 = r
+            .wheels
+            .iter()
+            .zip([pwm.0, pwm.1])
+            .map(|(w, d)| (w.current_a * f64::from(d) / 1000.0).abs())
+            .sum();
+        r.current_a = spec.battery.idle_a + motor_a;
+        r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
+    }
+
+    /// Coulomb floor friction of boxes: removes up to μ·g·dt of speed and redoes the position
+    /// update with what is left, so a push weaker than static friction moves nothing.
+    fn floor_friction(&mut self, start: &[(Vector<Real>, Real)], dt: f64) {
+        for (o, &(p0, a0)) in self.obstacles.iter().zip(start) {
+            let b = &mut self.bodies[o.body];
+            let v = [f64::from(b.linvel().x), f64::from(b.linvel().y)];
+            let speed = v[0].hypot(v[1]);
+            let dv = o.friction * GRAVITY * dt;
+            let keep = if speed > dv {
+                (speed - dv) / speed
+            } else {
+                0.0
+            };
+            let v1 = [v[0] * keep, v[1] * keep];
+            // Dry friction over the footprint: torque ≈ μ·m·g·r̄ with r̄ about a third of the diagonal.
+            let mass = f64::from(b.mass());
+            let inertia = f64::from(b.mass_properties().effective_angular_inertia());
+            let r_mean = o.half[0].hypot(o.half[1]) * 2.0 / 3.0;
+            let dw = if inertia > 0.0 {
+                o.friction * mass * GRAVITY * r_mean * dt / inertia
+            } else {
+                0.0
+            };
+            let w = f64::from(b.angvel());
+            let w1 = if w.abs() > dw {
+                w - dw * w.signum()
+            } else {
+                0.0
+            };
+            b.set_linvel(vector![v1[0] as f32, v1[1] as f32], true);
+            b.set_angvel(w1 as f32, true);
+            b.set_translation(
+                vector![p0.x + (v1[0] * dt) as f32, p0.y + (v1[1] * dt) as f32],
+                true,
+            );
+            b.set_rotation(Rotation::new(a0 + (w1 * dt) as f32), true);
+        }
+    }
+
+    fn owner(&self, c: ColliderHandle) -> Option<Owner> {
+        self.owners
+            .binary_search_by_key(&c.into_raw_parts(), |&(h, _)| h.into_raw_parts())
+            .ok()
+            .map(|k| self.owners[k].1)
+    }
+
+    fn record_contacts(&mut self) {
+        let mut now_active = Vec::new();
+        for pair in self.narrow_phase.contact_pairs() {
+            if !pair.has_any_active_contact {
+                continue;
+            }
+            let (Some(a), Some(b)) = (self.owner(pair.collider1), self.owner(pair.collider2))
+            else {
+                continue;
+            };
+            let kind = match (a, b) {
+                (Owner::Robot(x), Owner::Robot(y)) => ContactKind::RobotRobot(x.min(y), x.max(y)),
+                (Owner::Robot(x), Owner::Wall) | (Owner::Wall, Owner::Robot(x)) => {
+                    ContactKind::RobotWall(x)
+                }
+                (Owner::Robot(x), Owner::Obstacle(o)) | (Owner::Obstacle(o), Owner::Robot(x)) => {
+                    ContactKind::RobotObstacle(x, o)
+                }
+                _ => continue,
+            };
+            now_active.push(kind);
+        }
+        now_active.sort();
+        now_active.dedup();
+        let at_s = self.now_ns as f64 * 1e-9;
+        for k in &now_active {
+            if self.active_contacts.binary_search(k).is_err() {
+                self.contacts.push(Contact { kind: *k, at_s });
+            }
+        }
+        self.active_contacts = now_active;
+    }
+
+    /// Reads every robot's sensors off the world at the current time.
+    fn read_sensors(&mut self) {
+        let dt = self.dt_ns as f64 * 1e-9;
+        let spec = &self.spec;
+        let battery = &spec.battery;
+        self.robot_boxes.clear();
+        for r in &mut self.robots {
+            let b = &self.bodies[r.body];
+            let x = f64::from(b.translation().x);
+            let y = f64::from(b.translation().y);
+            let theta_wrapped = f64::from(b.rotation().angle());
+            let mut dtheta = theta_wrapped - r.pose.theta.rem_euclid(std::f64::consts::TAU);
+            dtheta = (dtheta + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            r.distance_m += (x - r.pose.x).hypot(y - r.pose.y);
+            r.pose = Pose {
+                x,
+                y,
+                theta: r.pose.theta + dtheta,
+            };
+            let (s, c) = theta_wrapped.sin_cos();
+            self.robot_boxes.push(Obb {
+                center: [x, y],
+                half: [spec.length_m * 0.5, spec.width_m * 0.5],
+                angle: theta_wrapped,
+            });
+            let vel = Vector2::new(f64::from(b.linvel().x), f64::from(b.linvel().y));
+            let acc = (vel - r.last_velocity) / dt;
+            r.last_velocity = vel;
+            let board = r.firmware.board_mut();
+            let sensor = Point2::new(
+                x + c * spec.line_sensor_ahead_m,
+                y + s * spec.line_sensor_ahead_m,
+            );
+            for (k, spot) in board.spots.iter_mut().enumerate() {
+                let lateral = (k as f64 - 3.5) * spec.spot_pitch_m;
+                // The sensor's rightward axis is (sin θ, −cos θ).
+                let p = Point2::new(sensor.x + lateral * s, sensor.y - lateral * c);
+                *spot = self.world.track.floor_at(p).ir_reflectance;
+            }
+            let rgb = self.world.track.floor_at(sensor).rgb;
+            let scale = 1000.0 * (0.8 + 0.4 * self.world.light.ambient as f32);
+            let ch = |v: f32| (v * scale).clamp(0.0, 65535.0) as u16;
+            let (red, green, blue) = (ch(rgb[0]), ch(rgb[1]), ch(rgb[2]));
+            board.colour = [
+                red,
+                green,
+                blue,
+                ((u32::from(red) + u32::from(green) + u32::from(blue)) / 3) as u16,
+            ];
+            let to_mg = |a: f64| (a / GRAVITY * 1000.0).clamp(-32000.0, 32000.0) as i16;
+            board.accel = [
+                to_mg(acc.x * c + acc.y * s),
+                to_mg(-acc.x * s + acc.y * c),
+                1000,
+            ];
+            let soc = (r.charge_ah / battery.capacity_ah).clamp(0.0, 1.0);
+            let open = battery.empty_v + (battery.full_v - battery.empty_v) * soc;
+            let volts = (open - r.current_a * battery.internal_ohm).max(0.0);
+            board.battery_mv = (volts * 1000.0) as u16;
+            board.current_ma = (r.current_a * 1000.0).min(32000.0) as i16;
+            // Self-heating towards 25 °C + 40 °C/A with a one-minute time constant.
+            r.temperature_c += (25.0 + 40.0 * r.current_a - r.temperature_c) * dt / 60.0;
+            board.temperature_dc = (r.temperature_c * 10.0) as i16;
+        }
+        self.obstacle_boxes.clear();
+        for o in &self.obstacles {
+            let b = &self.bodies[o.body];
+            self.obstacle_boxes.push(Obb {
+                center: [f64::from(b.translation().x), f64::from(b.translation().y)],
+                half: o.half,
+                angle: f64::from(b.rotation().angle()),
+            });
+        }
+        let arena = &self.world.arena;
+        let cell = self.spec.ir_range_m.iter().cloned().fold(0.05, f64::max) + 0.01;
+        self.grid.rebuild(
+            arena.width_m,
+            arena.height_m,
+            cell,
+            self.robot_boxes.iter().map(|b| b.center),
+        );
+    }
+
+    fn propagate_ir(&mut self, now: Instant) {
+        let mut deliveries: Vec<(usize, Side, IrFrame)> = Vec::new();
+        {
+            let scene = Scene {
+                robots: &self.robot_boxes,
+                obstacles: &self.obstacle_boxes,
+                arena: [self.world.arena.width_m, self.world.arena.height_m],
+                grid: &self.grid,
+            };
+            let spec = &self.spec;
+            for (i, r) in self.robots.iter_mut().enumerate() {
+                for (led, power, frame) in r.firmware.board_mut().ir_out.drain(..) {
+                    let Some(&angle) = spec.ir_led_angle_deg.get(usize::from(led)) else {
+                        continue;
+                    };
+                    let level = usize::from(power.clamp(1, 4)) - 1;
+                    let beam = Beam {
+                        robot: i,
+                        led_angle: angle.to_radians(),
+                        range: spec.ir_range_m[level],
+                        cone_half: spec.ir_cone_half_deg.to_radians(),
+                    };
+                    let arrivals = ir::propagate(&scene, &beam);
+                    for (j, side) in arrivals.robots {
+                        deliveries.push((j, side, frame));
+                    }
+                    if let Some(side) = arrivals.reflection {
+                        deliveries.push((i, side, frame));
+                    }
+                }
+            }
+        }
+        for (j, side, frame) in deliveries {
+            self.robots[j].firmware.on_ir_frame(now, side, frame);
+        }
+    }
+}

@@ -1,0 +1,297 @@
+//! The firmware drives simulated bodies: moves, pushing, IR encounters, watchdog, determinism.
+
+mod common;
+
+use std::time::Duration;
+
+use common::{connected, run, send, world};
+use firmware::hal::Side;
+use protocol::packets::*;
+use protocol::AnyPacket;
+
+const OPEN: &str = r#"
+name = "open"
+[arena]
+width_m = 1.0
+height_m = 1.0
+[track]
+nodes = [{ id = "a", x = 0.1, y = 0.1 }, { id = "b", x = 0.2, y = 0.1 }]
+edges = [{ from = "a", to = "b" }]
+[[robots]]
+id = 1
+x = 0.5
+y = 0.5
+heading_deg = 0
+"#;
+
+#[test]
+fn square_walk_closes_in_physics() {
+    let mut sim = connected(world(OPEN), 1);
+    for i in 0..4u16 {
+        send(
+            &mut sim,
+            0,
+            StraightMovement {
+                distance_m: 0.1,
+                speed_mps: 0.2,
+                move_id: 2 * i,
+            },
+        );
+        send(
+            &mut sim,
+            0,
+            RotationMovement {
+                angle_deg: 90.0,
+                speed_mps: 0.2,
+                move_id: 2 * i + 1,
+            },
+        );
+    }
+    let done = run(&mut sim, Duration::from_secs(15), |_, p| {
+        matches!(p, AnyPacket::QueueEmpty(_))
+    });
+    assert!(done.is_some(), "queue never emptied");
+    run(&mut sim, Duration::from_millis(300), |_, _| false);
+    let p = sim.robots()[0].pose();
+    let err_mm = (p.x - 0.5).hypot(p.y - 0.5) * 1e3;
+    let heading = (p.theta.to_degrees() - 360.0).abs();
+    eprintln!("square: {err_mm:.1} mm, {heading:.1} deg, pose {p:?}, done at {done:?}");
+    assert!(err_mm < 10.0, "{err_mm} mm");
+    assert!(heading < 5.0, "{heading} deg");
+}
+
+fn unwrap_angle(prev: f64, now: f64) -> f64 {
+    let mut d = now - prev.rem_euclid(std::f64::consts::TAU);
+    d = (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    prev + d
+}
+
+#[test]
+fn line_following_laps_the_oval_three_times() {
+    let oval = simulator::world::presets::preset("oval").unwrap();
+    let mut sim = connected(oval, 3);
+    for i in 0..2 {
+        send(
+            &mut sim,
+            i,
+            LineFollow {
+                enable: 1,
+                speed_mps: 0.2,
+            },
+        );
+    }
+    let centre = (0.5, 0.3);
+    let angle = |p: simulator::sim::Pose| (p.y - centre.1).atan2(p.x - centre.0);
+    let mut turned = [angle(sim.robots()[0].pose()), angle(sim.robots()[1].pose())];
+    let start = turned;
+    let mut lost = 0;
+    let mut worst_mm: f64 = 0.0;
+    let limit = Duration::from_secs(45);
+    let end = sim.now() + limit;
+    while sim.now() < end {
+        run(&mut sim, Duration::from_millis(50), |_, p| {
+            if matches!(p, AnyPacket::LineEvent(e) if e.lost == 1) {
+                lost += 1;
+            }
+            false
+        });
+        for (i, t) in turned.iter_mut().enumerate() {
+            let p = sim.robots()[i].pose();
+            *t = unwrap_angle(*t, angle(p));
+            let sensor =
+                nalgebra::Point2::new(p.x + 0.016 * p.theta.cos(), p.y + 0.016 * p.theta.sin());
+            let d = sim
+                .world()
+                .track
+                .nearest(sensor)
+                .map_or(1.0, |n| n.distance_m);
+            worst_mm = worst_mm.max(d * 1e3);
+        }
+        if turned
+            .iter()
+            .zip(start)
+            .all(|(t, s)| t - s >= 3.0 * std::f64::consts::TAU)
+        {
+            break;
+        }
+    }
+    let laps: Vec<f64> = turned
+        .iter()
+        .zip(start)
+        .map(|(t, s)| (t - s) / std::f64::consts::TAU)
+        .collect();
+    eprintln!("laps {laps:?} in {:?}, line lost {lost} times, sensor at most {worst_mm:.1} mm off the tape", sim.now());
+    assert!(laps.iter().all(|&l| l >= 3.0), "laps {laps:?} in {limit:?}");
+    assert_eq!(lost, 0, "line lost");
+    assert!(
+        worst_mm < 8.0,
+        "sensor {worst_mm:.1} mm off the tape centre"
+    );
+    assert_eq!(sim.robot_collisions(), 0);
+}
+
+/// A world with the `push` preset's box and `robots` placed straight behind it, touching.
+fn pusher_world(robots: &[(u16, f64)]) -> simulator::World {
+    let mut w = simulator::world::presets::preset("push").unwrap();
+    let b = &w.obstacles[0];
+    let (bx, by) = (b.position.x, b.position.y);
+    let back = bx - b.width_m * 0.5 - 0.024 - 0.002;
+    w.robots = robots
+        .iter()
+        .map(|&(id, dy)| simulator::world::RobotStart {
+            id,
+            position: nalgebra::Point2::new(back, by + dy),
+            heading_rad: 0.0,
+        })
+        .collect();
+    w
+}
+
+fn push_for(world: simulator::World, secs: u64) -> f64 {
+    let mut sim = connected(world, 5);
+    for i in 0..sim.robots().len() {
+        // Full power straight ahead: the motor-power teleop, no speed loop to back off.
+        send(
+            &mut sim,
+            i,
+            MotorPower {
+                left_pwm: 1000,
+                right_pwm: 1000,
+            },
+        );
+    }
+    run(&mut sim, Duration::from_secs(secs), |_, _| false);
+    sim.obstacle_displacements()[0]
+}
+
+#[test]
+fn one_robot_cannot_move_the_heavy_box_and_two_can() {
+    let one = push_for(pusher_world(&[(1, 0.0)]), 10);
+    let two = push_for(pusher_world(&[(1, -0.0165), (2, 0.0165)]), 10);
+    eprintln!(
+        "box moved {:.1} mm by one robot, {:.1} mm by two",
+        one * 1e3,
+        two * 1e3
+    );
+    assert!(one < 0.005, "one robot moved it {:.1} mm", one * 1e3);
+    assert!(two > 0.050, "two robots moved it only {:.1} mm", two * 1e3);
+}
+
+const FACING: &str = r#"
+name = "facing"
+[arena]
+width_m = 0.6
+height_m = 0.4
+[track]
+nodes = [{ id = "a", x = 0.05, y = 0.05 }, { id = "b", x = 0.1, y = 0.05 }]
+edges = [{ from = "a", to = "b" }]
+[[robots]]
+id = 7
+x = 0.27
+y = 0.2
+heading_deg = 0
+[[robots]]
+id = 9
+x = 0.33
+y = 0.2
+heading_deg = 180
+[[robots]]
+id = 4
+x = 0.555
+y = 0.3
+heading_deg = 0
+"#;
+
+#[test]
+fn facing_robots_identify_each_other_and_a_wall_is_an_obstacle() {
+    let mut sim = connected(world(FACING), 2);
+    let mut seen: Vec<(u16, u16)> = Vec::new();
+    let mut obstacles = [0usize; 3];
+    let mut encounters_of_wall_robot = 0;
+    run(&mut sim, Duration::from_secs(1), |i, p| {
+        match p {
+            AnyPacket::RobotEncountered(e) => {
+                let me = [7u16, 9, 4][i];
+                seen.push((me, { e.robot_id }));
+                if i == 2 {
+                    encounters_of_wall_robot += 1;
+                }
+            }
+            AnyPacket::Obstacle(o) if o.side == Side::Front as u8 => obstacles[i] += 1,
+            _ => {}
+        }
+        false
+    });
+    eprintln!("encounters {seen:?}, obstacle reports {obstacles:?}");
+    assert!(seen.contains(&(7, 9)), "7 did not identify 9 within 1 s");
+    assert!(seen.contains(&(9, 7)), "9 did not identify 7 within 1 s");
+    assert!(obstacles[2] > 0, "robot facing the wall saw no obstacle");
+    assert_eq!(encounters_of_wall_robot, 0, "a wall is not a robot");
+}
+
+#[test]
+fn a_cut_link_stops_the_robot_within_the_watchdog_timeout() {
+    let mut sim = connected(world(OPEN), 1);
+    send(
+        &mut sim,
+        0,
+        WheelSpeeds {
+            left_mps: 0.1,
+            right_mps: 0.1,
+        },
+    );
+    run(&mut sim, Duration::from_millis(500), |_, _| false);
+    assert!(
+        sim.robots()[0].firmware().board().pwm != (0, 0),
+        "not driving"
+    );
+    let cut_at = sim.now();
+    // The last packet the robot got was a ping up to 100 ms before the cut; count from the cut.
+    sim.set_link_up(0, false);
+    let mut stopped_at = None;
+    while sim.now() < cut_at + Duration::from_secs(1) {
+        sim.step();
+        if sim.robots()[0].firmware().board().pwm == (0, 0) {
+            stopped_at = Some(sim.now());
+            break;
+        }
+    }
+    let after = stopped_at.expect("never stopped") - cut_at;
+    let timeout = Duration::from_millis(u64::from(
+        protocol::settings::Settings::default().watchdog.timeout_ms,
+    ));
+    eprintln!("stopped {after:?} after the cut");
+    assert!(
+        after <= timeout + sim.dt(),
+        "stopped {after:?} after the cut"
+    );
+}
+
+fn trajectory(seed: u64) -> Vec<(f64, f64, f64)> {
+    let oval = simulator::world::presets::preset("oval").unwrap();
+    let mut sim = connected(oval, seed);
+    for i in 0..2 {
+        send(
+            &mut sim,
+            i,
+            LineFollow {
+                enable: 1,
+                speed_mps: 0.2,
+            },
+        );
+    }
+    run(&mut sim, Duration::from_secs(60), |_, _| false);
+    sim.robots()
+        .iter()
+        .map(|r| (r.pose().x, r.pose().y, r.pose().theta))
+        .collect()
+}
+
+#[test]
+fn one_seed_is_bit_identical_and_two_seeds_differ() {
+    let a = trajectory(11);
+    let b = trajectory(11);
+    let c = trajectory(12);
+    assert_eq!(a, b, "same seed, different poses");
+    assert_ne!(a, c, "different seeds, same poses");
+}
