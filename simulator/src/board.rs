@@ -3,14 +3,33 @@
 //! IR frames, LED), so the unmodified firmware runs against the physics world.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 
 use firmware::hal::{
     Accelerometer, ColourSensor, EncoderCapture, EncoderEdge, IrFrame, IrTransmitter,
     LineSensorAdc, Motors, PowerMonitor, SettingsStorage, StatusLed, StorageError, Thermometer,
 };
+use nalgebra::Point2;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
+use crate::world::Track;
+
+/// Where the line and colour sensors are, so the board can look at the floor when the firmware
+/// actually samples (500 Hz line, 200 Hz colour) rather than on every physics step.
+#[derive(Clone, Debug)]
+pub struct FloorView {
+    /// The floor.
+    pub track: Arc<Track>,
+    /// Line sensor centre, metres.
+    pub sensor: [f64; 2],
+    /// Sine and cosine of the heading.
+    pub sin_cos: (f64, f64),
+    /// Distance between spots, metres.
+    pub spot_pitch_m: f64,
+    /// Colour channel counts for a reflectance of 1.
+    pub colour_scale: f32,
+}
 /// Inputs from the world, outputs to it, and the board's own storage.
 #[derive(Clone, Debug)]
 pub struct SimBoard {
@@ -46,6 +65,10 @@ pub struct SimBoard {
     pub ir_out: Vec<(u8, u8, IrFrame)>,
     /// The settings image in "EEPROM".
     pub storage: Option<Vec<u8>>,
+    /// The floor under the robot; `None` keeps `spots` and `colour` as set.
+    pub floor: Option<FloorView>,
+    /// Whether `spots` and `colour` were read off the floor since the robot last moved.
+    fresh: (bool, bool),
     rng: ChaCha8Rng,
 }
 
@@ -69,8 +92,47 @@ impl SimBoard {
             led: [0; 3],
             ir_out: Vec::new(),
             storage,
+            floor: None,
+            fresh: (false, false),
             rng,
         }
+    }
+
+    /// The robot moved: the floor under its sensors must be looked at again.
+    pub fn moved(&mut self) {
+        self.fresh = (false, false);
+    }
+
+    fn look_at_floor(&mut self) {
+        if self.fresh.0 {
+            return;
+        }
+        self.fresh.0 = true;
+        let Some(f) = &self.floor else { return };
+        let (s, c) = f.sin_cos;
+        for (k, spot) in self.spots.iter_mut().enumerate() {
+            let lateral = (k as f64 - 3.5) * f.spot_pitch_m;
+            // The sensor's rightward axis is (sin θ, −cos θ).
+            let p = Point2::new(f.sensor[0] + lateral * s, f.sensor[1] - lateral * c);
+            *spot = f.track.floor_at(p).ir_reflectance;
+        }
+    }
+
+    fn look_at_colour(&mut self) {
+        if self.fresh.1 {
+            return;
+        }
+        self.fresh.1 = true;
+        let Some(f) = &self.floor else { return };
+        let rgb = f.track.floor_at(Point2::new(f.sensor[0], f.sensor[1])).rgb;
+        let ch = |v: f32| (v * f.colour_scale).clamp(0.0, 65535.0) as u16;
+        let (r, g, b) = (ch(rgb[0]), ch(rgb[1]), ch(rgb[2]));
+        self.colour = [
+            r,
+            g,
+            b,
+            ((u32::from(r) + u32::from(g) + u32::from(b)) / 3) as u16,
+        ];
     }
 
     fn noisy(&mut self, v: f32) -> f32 {
@@ -100,6 +162,7 @@ impl LineSensorAdc for SimBoard {
     }
 
     fn read_detectors(&mut self) -> [u16; 4] {
+        self.look_at_floor();
         let mut out = [0u16; 4];
         for (det, slot) in out.iter_mut().enumerate() {
             let mut v = self.ambient * self.ambient_gain;
@@ -130,6 +193,7 @@ impl StatusLed for SimBoard {
 
 impl ColourSensor for SimBoard {
     fn read_colour(&mut self) -> [u16; 4] {
+        self.look_at_colour();
         self.colour
     }
 }

@@ -16,13 +16,25 @@ pub struct Obb {
     pub half: [f64; 2],
     /// Heading, radians.
     pub angle: f64,
+    /// Sine and cosine of the heading, computed once.
+    sin_cos: (f64, f64),
 }
 
 impl Obb {
+    /// A box centred at `center` with half extents `half`, turned by `angle`.
+    pub fn new(center: [f64; 2], half: [f64; 2], angle: f64) -> Self {
+        Self {
+            center,
+            half,
+            angle,
+            sin_cos: angle.sin_cos(),
+        }
+    }
+
     /// Distance along the unit ray `dir` from `origin` to where it enters this box, if it does
     /// within `max`; a ray starting inside reports 0.
     pub fn ray(&self, origin: [f64; 2], dir: [f64; 2], max: f64) -> Option<f64> {
-        let (s, c) = self.angle.sin_cos();
+        let (s, c) = self.sin_cos;
         let rel = [origin[0] - self.center[0], origin[1] - self.center[1]];
         // Into the box frame.
         let o = [rel[0] * c + rel[1] * s, -rel[0] * s + rel[1] * c];
@@ -53,7 +65,7 @@ impl Obb {
 
     /// A point at `forward` metres along the heading from the centre.
     pub fn ahead(&self, forward: f64) -> [f64; 2] {
-        let (s, c) = self.angle.sin_cos();
+        let (s, c) = self.sin_cos;
         [self.center[0] + forward * c, self.center[1] + forward * s]
     }
 }
@@ -175,7 +187,7 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
             if off_axis > beam.cone_half + (RECEIVER_RADIUS / d).atan() {
                 continue;
             }
-            let facing = [sign * other.angle.cos(), sign * other.angle.sin()];
+            let facing = [sign * other.sin_cos.1, sign * other.sin_cos.0];
             if angle_between(facing, [-v[0], -v[1]]) > RECEIVER_HALF_ANGLE {
                 continue;
             }
@@ -276,11 +288,7 @@ mod tests {
     use super::*;
 
     fn robot(x: f64, y: f64, deg: f64) -> Obb {
-        Obb {
-            center: [x, y],
-            half: [0.024, 0.016],
-            angle: deg.to_radians(),
-        }
+        Obb::new([x, y], [0.024, 0.016], deg.to_radians())
     }
 
     fn run(robots: &[Obb], obstacles: &[Obb], beam: Beam) -> Arrivals {
@@ -339,11 +347,7 @@ mod tests {
     #[test]
     fn a_box_between_blocks_the_frame_and_reflects_it() {
         let robots = [robot(0.3, 0.5, 0.0), robot(0.42, 0.5, 180.0)];
-        let wall = Obb {
-            center: [0.36, 0.5],
-            half: [0.005, 0.05],
-            angle: 0.0,
-        };
+        let wall = Obb::new([0.36, 0.5], [0.005, 0.05], 0.0);
         let a = run(&robots, &[wall], beam(0, 0.0, 0.1));
         assert!(a.robots.is_empty());
         assert_eq!(a.reflection, Some(Side::Front));

@@ -238,7 +238,10 @@ mod tests {
             .map(|l| std::iter::from_fn(|| l.recv_at_host(500_000_000)).count())
             .sum();
         // By 0.5 s (10 ms of it latency) about 0.49 / 0.96 of them have arrived.
-        assert!((330..390).contains(&delivered_by_half), "{delivered_by_half}");
+        assert!(
+            (330..390).contains(&delivered_by_half),
+            "{delivered_by_half}"
+        );
     }
 
     #[test]

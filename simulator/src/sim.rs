@@ -11,6 +11,8 @@
 //!
 //! Everything is a function of the world file and the seed: same seed, bit-identical run.
 
+use std::sync::Arc;
+
 use firmware::hal::{EncoderEdge, IrFrame, Side, Wheel};
 use firmware::{Firmware, Instant};
 use nalgebra::{Point2, Vector2};
@@ -18,8 +20,9 @@ use protocol::settings::Settings;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rapier2d::prelude::*;
+use rayon::prelude::*;
 
-use crate::board::SimBoard;
+use crate::board::{FloorView, SimBoard};
 use crate::drive::{grip_impulse, inverse_mass_along, WheelState};
 use crate::ir::{self, Beam, Grid, Obb, Scene};
 use crate::link::{Link, LinkModel, LinkStats, Piconet};
@@ -28,6 +31,9 @@ use crate::world::World;
 
 const GRAVITY: f64 = 9.81;
 const WALL_THICKNESS: f32 = 0.02;
+/// Robot count from which per-robot work runs on every core; each robot touches only its own
+/// state in those phases, so the result does not depend on the thread count.
+const PARALLEL_FROM: usize = 256;
 
 /// Options of a simulation run.
 #[derive(Clone, Debug)]
@@ -242,6 +248,8 @@ impl Simulation {
                 half: [o.width_m * 0.5, o.height_m * 0.5],
             });
         }
+        let track = Arc::new(world.track.clone());
+        let colour_scale = 1000.0 * (0.8 + 0.4 * world.light.ambient as f32);
         let mut robots = Vec::new();
         for (i, start) in world.robots.iter().enumerate() {
             let body = bodies.insert(
@@ -272,6 +280,13 @@ impl Simulation {
             board.noise = world.light.noise as f32;
             board.line_gain = spec.line_gain as f32;
             board.ambient_gain = spec.ambient_gain as f32;
+            board.floor = Some(FloorView {
+                track: Arc::clone(&track),
+                sensor: [start.position.x, start.position.y],
+                sin_cos: start.heading_rad.sin_cos(),
+                spot_pitch_m: spec.spot_pitch_m,
+                colour_scale,
+            });
             robots.push(SimRobot {
                 id: start.id,
                 firmware: Firmware::new(board),
@@ -459,8 +474,18 @@ impl Simulation {
     pub fn step(&mut self) {
         let dt = self.dt_ns as f64 * 1e-9;
         let t0 = self.now_ns;
-        for i in 0..self.robots.len() {
-            self.drive_robot(i, t0, dt);
+        let spec = &self.spec;
+        let bodies = &self.bodies;
+        let drive = |r: &mut SimRobot| drive_robot(spec, r, &bodies[r.body], t0, dt);
+        let velocities: Vec<([f64; 2], f64)> = if self.robots.len() >= PARALLEL_FROM {
+            self.robots.par_iter_mut().map(drive).collect()
+        } else {
+            self.robots.iter_mut().map(drive).collect()
+        };
+        for (r, (v, w)) in self.robots.iter().zip(velocities) {
+            let body = &mut self.bodies[r.body];
+            body.set_linvel(vector![v[0] as f32, v[1] as f32], true);
+            body.set_angvel(w as f32, true);
         }
         let obstacle_start: Vec<(Vector<Real>, Real)> = self
             .obstacles
@@ -489,12 +514,17 @@ impl Simulation {
         self.record_contacts();
         self.read_sensors();
         let now = Instant::from_nanos(self.now_ns);
-        for i in 0..self.robots.len() {
-            let r = &mut self.robots[i];
-            while let Some(p) = r.link.recv_at_robot(self.now_ns) {
+        let now_ns = self.now_ns;
+        let tick = |r: &mut SimRobot| {
+            while let Some(p) = r.link.recv_at_robot(now_ns) {
                 r.firmware.on_link_packet(now, &p);
             }
             r.firmware.tick(now);
+        };
+        if self.robots.len() >= PARALLEL_FROM {
+            self.robots.par_iter_mut().for_each(tick);
+        } else {
+            self.robots.iter_mut().for_each(tick);
         }
         self.propagate_ir(now);
         for i in 0..self.robots.len() {
@@ -515,87 +545,6 @@ impl Simulation {
                 );
             }
         }
-    }
-
-    /// Motors, tyres and encoders of robot `i` over one step starting at `t0`.
-    fn drive_robot(&mut self, i: usize, t0: u64, dt: f64) {
-        let spec = &self.spec;
-        let radius = spec.wheel_radius_m();
-        let r = &mut self.robots[i];
-        let volts = f64::from(r.firmware.board().battery_mv) / 1000.0;
-        let pwm = r.firmware.board().pwm;
-        let omega_start = [r.wheels[0].omega, r.wheels[1].omega];
-        for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
-            w.drive(&spec.motor, f64::from(duty) / 1000.0, volts, dt);
-        }
-        let body = &mut self.bodies[r.body];
-        let mass = f64::from(body.mass());
-        let inertia = f64::from(body.mass_properties().effective_angular_inertia());
-        let theta = f64::from(body.rotation().angle());
-        let (s, c) = theta.sin_cos();
-        let fwd = [c, s];
-        let left = [-s, c];
-        let mut v = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
-        let mut omega = f64::from(body.angvel());
-        let grip = spec.tyre_friction * mass * GRAVITY * 0.5 * dt;
-        for (k, side) in [(0usize, 1.0f64), (1, -1.0)] {
-            let half = side * spec.wheel_gauge_m * 0.5;
-            let arm = [
-                fwd[0] * spec.axle_offset_m + left[0] * half,
-                fwd[1] * spec.axle_offset_m + left[1] * half,
-            ];
-            let vp = [v[0] - omega * arm[1], v[1] + omega * arm[0]];
-            let ground_long = vp[0] * fwd[0] + vp[1] * fwd[1];
-            let ground_lat = vp[0] * left[0] + vp[1] * left[1];
-            let k_long = inverse_mass_along(mass, inertia, arm, fwd);
-            let k_lat = inverse_mass_along(mass, inertia, arm, left);
-            let wheel = &mut r.wheels[k];
-            let mut j_long = grip_impulse(
-                wheel.rim_speed(radius),
-                ground_long,
-                k_long,
-                &spec.motor,
-                radius,
-            );
-            let mut j_lat = -ground_lat / k_lat;
-            let total = j_long.hypot(j_lat);
-            if total > grip {
-                j_long *= grip / total;
-                j_lat *= grip / total;
-            }
-            wheel.apply_tyre(&spec.motor, radius, j_long);
-            let j = [
-                fwd[0] * j_long + left[0] * j_lat,
-                fwd[1] * j_long + left[1] * j_lat,
-            ];
-            v[0] += j[0] / mass;
-            v[1] += j[1] / mass;
-            omega += (arm[0] * j[1] - arm[1] * j[0]) / inertia;
-        }
-        body.set_linvel(vector![v[0] as f32, v[1] as f32], true);
-        body.set_angvel(omega as f32, true);
-        let board = r.firmware.board_mut();
-        for (k, wheel_id) in [(0usize, Wheel::Left), (1, Wheel::Right)] {
-            let capture = spec.capture_hz;
-            let edges = &mut board.edges;
-            r.wheels[k].advance(spec, omega_start[k], dt, |frac| {
-                let t = t0 as f64 * 1e-9 + frac * dt;
-                let ticks = (t * capture).round();
-                let at = Instant::from_nanos((ticks / capture * 1e9).round() as u64);
-                edges.push_back(EncoderEdge {
-                    wheel: wheel_id,
-                    at,
-                });
-            });
-        }
-        let motor_a: f64 = r
-            .wheels
-            .iter()
-            .zip([pwm.0, pwm.1])
-            .map(|(w, d)| (w.current_a * f64::from(d) / 1000.0).abs())
-            .sum();
-        r.current_a = spec.battery.idle_a + motor_a;
-        r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
     }
 
     /// Coulomb floor friction of boxes: removes up to μ·g·dt of speed and redoes the position
@@ -682,9 +631,9 @@ impl Simulation {
         let dt = self.dt_ns as f64 * 1e-9;
         let spec = &self.spec;
         let battery = &spec.battery;
-        self.robot_boxes.clear();
-        for r in &mut self.robots {
-            let b = &self.bodies[r.body];
+        let bodies = &self.bodies;
+        let sense = |r: &mut SimRobot| -> Obb {
+            let b = &bodies[r.body];
             let x = f64::from(b.translation().x);
             let y = f64::from(b.translation().y);
             let theta_wrapped = f64::from(b.rotation().angle());
@@ -698,35 +647,18 @@ impl Simulation {
                 theta: r.pose.theta + dtheta,
             };
             let (s, c) = theta_wrapped.sin_cos();
-            self.robot_boxes.push(Obb {
-                center: [x, y],
-                half: [spec.length_m * 0.5, spec.width_m * 0.5],
-                angle: theta_wrapped,
-            });
             let vel = Vector2::new(f64::from(b.linvel().x), f64::from(b.linvel().y));
             let acc = (vel - r.last_velocity) / dt;
             r.last_velocity = vel;
             let board = r.firmware.board_mut();
-            let sensor = Point2::new(
-                x + c * spec.line_sensor_ahead_m,
-                y + s * spec.line_sensor_ahead_m,
-            );
-            for (k, spot) in board.spots.iter_mut().enumerate() {
-                let lateral = (k as f64 - 3.5) * spec.spot_pitch_m;
-                // The sensor's rightward axis is (sin θ, −cos θ).
-                let p = Point2::new(sensor.x + lateral * s, sensor.y - lateral * c);
-                *spot = self.world.track.floor_at(p).ir_reflectance;
+            if let Some(f) = &mut board.floor {
+                f.sensor = [
+                    x + c * spec.line_sensor_ahead_m,
+                    y + s * spec.line_sensor_ahead_m,
+                ];
+                f.sin_cos = (s, c);
             }
-            let rgb = self.world.track.floor_at(sensor).rgb;
-            let scale = 1000.0 * (0.8 + 0.4 * self.world.light.ambient as f32);
-            let ch = |v: f32| (v * scale).clamp(0.0, 65535.0) as u16;
-            let (red, green, blue) = (ch(rgb[0]), ch(rgb[1]), ch(rgb[2]));
-            board.colour = [
-                red,
-                green,
-                blue,
-                ((u32::from(red) + u32::from(green) + u32::from(blue)) / 3) as u16,
-            ];
+            board.moved();
             let to_mg = |a: f64| (a / GRAVITY * 1000.0).clamp(-32000.0, 32000.0) as i16;
             board.accel = [
                 to_mg(acc.x * c + acc.y * s),
@@ -741,15 +673,29 @@ impl Simulation {
             // Self-heating towards 25 °C + 40 °C/A with a one-minute time constant.
             r.temperature_c += (25.0 + 40.0 * r.current_a - r.temperature_c) * dt / 60.0;
             board.temperature_dc = (r.temperature_c * 10.0) as i16;
+            Obb::new(
+                [x, y],
+                [spec.length_m * 0.5, spec.width_m * 0.5],
+                theta_wrapped,
+            )
+        };
+        if self.robots.len() >= PARALLEL_FROM {
+            self.robots
+                .par_iter_mut()
+                .map(sense)
+                .collect_into_vec(&mut self.robot_boxes);
+        } else {
+            self.robot_boxes.clear();
+            self.robot_boxes.extend(self.robots.iter_mut().map(sense));
         }
         self.obstacle_boxes.clear();
         for o in &self.obstacles {
             let b = &self.bodies[o.body];
-            self.obstacle_boxes.push(Obb {
-                center: [f64::from(b.translation().x), f64::from(b.translation().y)],
-                half: o.half,
-                angle: f64::from(b.rotation().angle()),
-            });
+            self.obstacle_boxes.push(Obb::new(
+                [f64::from(b.translation().x), f64::from(b.translation().y)],
+                o.half,
+                f64::from(b.rotation().angle()),
+            ));
         }
         let arena = &self.world.arena;
         let cell = self.spec.ir_range_m.iter().cloned().fold(0.05, f64::max) + 0.01;
@@ -797,4 +743,88 @@ impl Simulation {
             self.robots[j].firmware.on_ir_frame(now, side, frame);
         }
     }
+}
+
+/// Motors, tyres and encoders of one robot over a step starting at `t0`; returns the body's new
+/// linear and angular velocity, for the caller to set.
+fn drive_robot(
+    spec: &RobotSpec,
+    r: &mut SimRobot,
+    body: &RigidBody,
+    t0: u64,
+    dt: f64,
+) -> ([f64; 2], f64) {
+    let radius = spec.wheel_radius_m();
+    let volts = f64::from(r.firmware.board().battery_mv) / 1000.0;
+    let pwm = r.firmware.board().pwm;
+    let omega_start = [r.wheels[0].omega, r.wheels[1].omega];
+    for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
+        w.drive(&spec.motor, f64::from(duty) / 1000.0, volts, dt);
+    }
+    let mass = f64::from(body.mass());
+    let inertia = f64::from(body.mass_properties().effective_angular_inertia());
+    let theta = f64::from(body.rotation().angle());
+    let (s, c) = theta.sin_cos();
+    let fwd = [c, s];
+    let left = [-s, c];
+    let mut v = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
+    let mut omega = f64::from(body.angvel());
+    let grip = spec.tyre_friction * mass * GRAVITY * 0.5 * dt;
+    for (k, side) in [(0usize, 1.0f64), (1, -1.0)] {
+        let half = side * spec.wheel_gauge_m * 0.5;
+        let arm = [
+            fwd[0] * spec.axle_offset_m + left[0] * half,
+            fwd[1] * spec.axle_offset_m + left[1] * half,
+        ];
+        let vp = [v[0] - omega * arm[1], v[1] + omega * arm[0]];
+        let ground_long = vp[0] * fwd[0] + vp[1] * fwd[1];
+        let ground_lat = vp[0] * left[0] + vp[1] * left[1];
+        let k_long = inverse_mass_along(mass, inertia, arm, fwd);
+        let k_lat = inverse_mass_along(mass, inertia, arm, left);
+        let wheel = &mut r.wheels[k];
+        let mut j_long = grip_impulse(
+            wheel.rim_speed(radius),
+            ground_long,
+            k_long,
+            &spec.motor,
+            radius,
+        );
+        let mut j_lat = -ground_lat / k_lat;
+        let total = j_long.hypot(j_lat);
+        if total > grip {
+            j_long *= grip / total;
+            j_lat *= grip / total;
+        }
+        wheel.apply_tyre(&spec.motor, radius, j_long);
+        let j = [
+            fwd[0] * j_long + left[0] * j_lat,
+            fwd[1] * j_long + left[1] * j_lat,
+        ];
+        v[0] += j[0] / mass;
+        v[1] += j[1] / mass;
+        omega += (arm[0] * j[1] - arm[1] * j[0]) / inertia;
+    }
+    let board = r.firmware.board_mut();
+    for (k, wheel_id) in [(0usize, Wheel::Left), (1, Wheel::Right)] {
+        let capture = spec.capture_hz;
+        let edges = &mut board.edges;
+        r.wheels[k].advance(spec, omega_start[k], dt, |frac| {
+            let t = t0 as f64 * 1e-9 + frac * dt;
+            let ticks = (t * capture).round();
+            let at = Instant::from_nanos((ticks / capture * 1e9).round() as u64);
+            edges.push_back(EncoderEdge {
+                wheel: wheel_id,
+                at,
+            });
+        });
+    }
+    let motor_a: f64 = r
+        .wheels
+        .iter()
+        .zip([pwm.0, pwm.1])
+        .map(|(w, d)| (w.current_a * f64::from(d) / 1000.0).abs())
+        .sum();
+    r.current_a = spec.battery.idle_a + motor_a;
+    r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
+    (v, omega)
 }

@@ -295,3 +295,29 @@ fn one_seed_is_bit_identical_and_two_seeds_differ() {
     assert_eq!(a, b, "same seed, different poses");
     assert_ne!(a, c, "different seeds, same poses");
 }
+
+#[test]
+fn many_robots_stepped_on_all_cores_are_still_deterministic() {
+    let run_once = || {
+        let mut sim = connected(simulator::world::presets::grid(0, 0, 300), 4);
+        for i in 0..sim.robots().len() {
+            send(
+                &mut sim,
+                i,
+                LineFollow {
+                    enable: 1,
+                    speed_mps: 0.15,
+                },
+            );
+        }
+        run(&mut sim, Duration::from_millis(500), |_, _| false);
+        sim.robots().iter().map(|r| r.pose()).collect::<Vec<_>>()
+    };
+    let (a, b) = (run_once(), run_once());
+    assert!(
+        a.iter().zip(&b).all(|(p, q)| p == q),
+        "300-robot runs diverged"
+    );
+    let moved = a.iter().filter(|p| p.x != 0.0).count();
+    assert_eq!(moved, 300);
+}

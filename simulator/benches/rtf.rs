@@ -1,0 +1,90 @@
+//! Real-time factor of the simulator with the firmware in the loop: 1, 10, 100 and 1,000 robots
+//! line following on `grid` worlds, every robot connected and reflecting its state.
+//!
+//! Prints simulated seconds per wall second, and the cost per robot-step relative to the
+//! one-robot run measured in the same process.
+
+use std::time::{Duration, Instant};
+
+use protocol::packets::{LineFollow, Ping};
+use protocol::AnyPacket;
+use simulator::world::presets;
+use simulator::{SimConfig, Simulation};
+
+fn send(sim: &mut Simulation, i: usize, p: impl Into<AnyPacket>) {
+    let mut buf = [0u8; protocol::MAX_PACKET];
+    let n = p.into().encode(&mut buf).unwrap_or(0);
+    sim.host_send(i, buf[..n].to_vec());
+}
+
+fn measure(robots: usize, simulated: Duration) -> (f64, f64) {
+    let world = presets::grid(0, 0, robots);
+    let mut sim = Simulation::new(
+        world,
+        SimConfig {
+            seed: Some(1),
+            ..SimConfig::default()
+        },
+    );
+    for i in 0..robots {
+        sim.connect(i);
+        send(
+            &mut sim,
+            i,
+            LineFollow {
+                enable: 1,
+                speed_mps: 0.15,
+            },
+        );
+    }
+    // Warm up a quarter of a second so every robot is moving.
+    sim.run_for(Duration::from_millis(250));
+    let start_sim = sim.now();
+    let start = Instant::now();
+    let mut next_ping = sim.now();
+    while sim.now() - start_sim < simulated {
+        if sim.now() >= next_ping {
+            for i in 0..robots {
+                send(
+                    &mut sim,
+                    i,
+                    Ping {
+                        seq: 0,
+                        host_time_us: 0,
+                    },
+                );
+            }
+            next_ping += Duration::from_millis(100);
+        }
+        sim.step();
+        for i in 0..robots {
+            while sim.host_recv(i).is_some() {}
+        }
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let sim_s = (sim.now() - start_sim).as_secs_f64();
+    let steps = sim_s / sim.dt().as_secs_f64();
+    (sim_s / wall, wall / (steps * robots as f64))
+}
+
+fn main() {
+    // `cargo test --benches` runs this unoptimised: keep that a smoke run.
+    let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
+    let mut base = None;
+    println!("robots  sim s / wall s   wall per robot-step   cost vs 1 robot");
+    for robots in [1usize, 10, 100, 1000] {
+        let secs = if quick {
+            0.05
+        } else if robots >= 1000 {
+            2.0
+        } else {
+            5.0
+        };
+        let (rtf, per) = measure(robots, Duration::from_secs_f64(secs));
+        let ratio = per / *base.get_or_insert(per);
+        println!(
+            "{robots:6}  {rtf:13.1}x  {:17.2} µs  {ratio:15.2}",
+            per * 1e6
+        );
+    }
+}

@@ -1,0 +1,68 @@
+//! The simulation as an async service under tokio's paused clock: link ends carry packets, and
+//! simulated time advances in lockstep with the host tasks.
+
+use std::time::Duration;
+
+use protocol::packets::{Ping, StraightMovement};
+use protocol::AnyPacket;
+use simulator::runtime::{self, Pace};
+use simulator::world::presets;
+use simulator::{SimConfig, Simulation};
+
+fn encode(p: impl Into<AnyPacket>) -> Vec<u8> {
+    let mut buf = [0u8; protocol::MAX_PACKET];
+    let n = p.into().encode(&mut buf).unwrap();
+    buf[..n].to_vec()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_move_over_an_async_link_end_moves_the_body() {
+    let sim = Simulation::new(presets::preset("oval").unwrap(), SimConfig::default());
+    let start = sim.robots()[0].pose();
+    let (handle, mut ends, task) = runtime::spawn(sim, Pace::TokioClock);
+    let mut end = ends.remove(0);
+    end.connect();
+    let hello = loop {
+        if let Ok(AnyPacket::Hello(h)) = protocol::decode(&end.recv().await.unwrap()) {
+            break h;
+        }
+    };
+    assert_eq!({ hello.robot_id }, end.robot_id);
+    end.send(encode(StraightMovement {
+        distance_m: 0.1,
+        speed_mps: 0.2,
+        move_id: 5,
+    }));
+    let t0 = tokio::time::Instant::now();
+    let finished = tokio::time::timeout(Duration::from_secs(5), async {
+        let mut pings = tokio::time::interval(Duration::from_millis(100));
+        loop {
+            tokio::select! {
+                _ = pings.tick() => { end.send(encode(Ping { seq: 0, host_time_us: 0 })); }
+                p = end.recv() => {
+                    if let Ok(AnyPacket::MoveFinished(m)) = protocol::decode(&p.unwrap()) {
+                        if { m.move_id } == 5 { break; }
+                    }
+                }
+            }
+        }
+    })
+    .await;
+    assert!(
+        finished.is_ok(),
+        "move not finished in 5 s of simulated time"
+    );
+    // Paused-clock time is simulated time: a 0.1 m move at 0.2 m/s with ramps takes 0.5–1.5 s.
+    let took = t0.elapsed();
+    assert!(
+        took > Duration::from_millis(500) && took < Duration::from_millis(1500),
+        "{took:?}"
+    );
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let truth = handle.truth().await.unwrap();
+    let p = truth.robots[0].1;
+    let moved = (p.x - start.x).hypot(p.y - start.y);
+    assert!((moved - 0.1).abs() < 0.005, "moved {moved} m");
+    handle.stop();
+    task.await.unwrap();
+}
