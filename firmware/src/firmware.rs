@@ -130,6 +130,11 @@ impl<B: Board> Firmware<B> {
         &mut self.board
     }
 
+    /// Powers down: hands the board back (for a simulated reboot).
+    pub fn into_board(self) -> B {
+        self.board
+    }
+
     /// The live settings.
     pub fn settings(&self) -> &Settings {
         &self.settings

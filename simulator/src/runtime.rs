@@ -28,6 +28,7 @@ enum Command {
     Disconnect(usize),
     SetLinkUp(usize, bool),
     Truth(oneshot::Sender<Truth>),
+    Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
 
@@ -144,6 +145,20 @@ impl SimHandle {
         rx.await.ok()
     }
 
+    /// Runs `f` on the simulation between two steps and returns its result: any ground truth a
+    /// test needs, or a fault to inject. `None` once the simulation has stopped.
+    pub async fn inspect<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut Simulation) -> T + Send + 'static,
+    ) -> Option<T> {
+        let (tx, rx) = oneshot::channel();
+        let job = Box::new(move |sim: &mut Simulation| {
+            let _ = tx.send(f(sim));
+        });
+        self.commands.send(Command::Inspect(job)).ok()?;
+        rx.await.ok()
+    }
+
     /// Stops the stepping task.
     pub fn stop(&self) {
         let _ = self.commands.send(Command::Stop);
@@ -214,6 +229,7 @@ async fn step_loop(
                 Command::Truth(reply) => {
                     let _ = reply.send(truth(&sim));
                 }
+                Command::Inspect(job) => job(&mut sim),
                 Command::Stop => return sim,
             }
         }

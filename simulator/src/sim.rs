@@ -438,6 +438,24 @@ impl Simulation {
         self.robots[i].link.set_up(up);
     }
 
+    /// Reboots robot `i`'s firmware: RAM state is lost, the stored settings image is loaded again,
+    /// and if its link is open it says hello again.
+    pub fn reboot(&mut self, i: usize) {
+        let now = Instant::from_nanos(self.now_ns);
+        let r = &mut self.robots[i];
+        let placeholder = Firmware::new(SimBoard::new(None, ChaCha8Rng::seed_from_u64(0)));
+        let mut board = std::mem::replace(&mut r.firmware, placeholder).into_board();
+        board.edges.clear();
+        board.ir_out.clear();
+        board.pwm = (0, 0);
+        r.firmware = Firmware::new(board);
+        r.wheels = [WheelState::default(); 2];
+        if r.connected {
+            r.firmware.on_link_connected(now);
+        }
+        self.flush_outgoing(i);
+    }
+
     /// The host sends one packet to robot `i`.
     pub fn host_send(&mut self, i: usize, packet: Vec<u8>) {
         let per = self.link_model.robots_per_piconet;

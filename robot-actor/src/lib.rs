@@ -1,0 +1,15 @@
+#![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
+
+pub mod actor;
+pub mod discover;
+pub mod link;
+pub mod odometry;
+pub mod robot;
+pub mod settings;
+
+pub use actor::{
+    MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind, StateUpdated,
+};
+pub use odometry::{Odometry, Pose};
+pub use robot::{CallError, Robot};
