@@ -1,0 +1,14 @@
+#![doc = include_str!("../README.md")]
+#![warn(missing_docs)]
+
+pub mod actor;
+pub mod api;
+pub mod square_walk;
+
+pub use actor::BehaviourActor;
+pub use api::{
+    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Registry, RobotView,
+    Verdict, WorldSnapshot,
+};
+pub use robot_actor::{MoveCommand, Pose, RobotEventKind};
+pub use simulator::world::graph::TrackGraph;

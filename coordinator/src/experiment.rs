@@ -1,0 +1,231 @@
+//! One supervised experiment: robots from the simulator or from addresses, robot actors, the
+//! supervisor and the behaviour, run until the behaviour's verdict, the time limit or Ctrl-C, then a
+//! report with ground truth where there is one.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use actix::Actor;
+use anyhow::{anyhow, bail, Context as _, Result};
+use behaviours::{BehaviourConfig, Registry};
+use robot_actor::discover::StaticList;
+use robot_actor::link::sim::SimDiscoverer;
+use robot_actor::link::{Discovered, Discoverer};
+use robot_actor::{Pose, Robot, RobotConfig};
+use simulator::runtime::{self, Pace};
+use simulator::world::{file, presets, World};
+use simulator::{SimConfig, Simulation};
+use tokio::sync::oneshot;
+
+use crate::report::{Report, RobotReport};
+use crate::safety::Safety;
+use crate::supervisor::{Abort, Supervisor};
+
+/// Where the robots come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Transport {
+    /// Simulated robots in this process (the default).
+    Sim,
+    /// Robots at the given addresses (`tcp://…`, `serial://…`, `bt://…`).
+    Addresses(Vec<String>),
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// Behaviour name.
+    pub behaviour: String,
+    /// World preset name or file; `None` takes the behaviour's preferred world.
+    pub world: Option<String>,
+    /// How many simulated robots (the world's first N); `None` takes them all.
+    pub robots: Option<usize>,
+    /// Robot source.
+    pub transport: Transport,
+    /// Seed.
+    pub seed: u64,
+    /// Pace the simulation to the wall clock.
+    pub realtime: bool,
+    /// Time limit (simulated when simulating).
+    pub duration: Duration,
+    /// Behaviour parameters.
+    pub params: std::collections::BTreeMap<String, String>,
+}
+
+/// Loads a preset by name or a world file by path.
+pub fn load_world(name: &str) -> Result<World> {
+    if let Some(w) = presets::preset(name) {
+        return Ok(w);
+    }
+    if name.ends_with(".toml") || std::path::Path::new(name).exists() {
+        return file::load(name).map_err(|e| anyhow!("{e}"));
+    }
+    bail!(
+        "unknown world {name:?}: not a preset ({}) nor a .toml file",
+        presets::preset_names().join(", ")
+    )
+}
+
+/// Runs one experiment to its end and reports it.
+pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
+    let entry = registry.get(&plan.behaviour).ok_or_else(|| {
+        anyhow!(
+            "unknown behaviour {:?}; known: {}",
+            plan.behaviour,
+            registry.names().join(", ")
+        )
+    })?;
+    let world_name = plan
+        .world
+        .clone()
+        .unwrap_or_else(|| entry.world.to_string());
+    let mut world = load_world(&world_name)?;
+    if let Some(n) = plan.robots {
+        if n == 0 || n > world.robots.len() {
+            bail!(
+                "--robots {n}: world {:?} has room for 1 to {} robots",
+                world.name,
+                world.robots.len()
+            );
+        }
+        world.robots.truncate(n);
+    }
+    let wall = std::time::Instant::now();
+    let (discovered, origins, sim) = match &plan.transport {
+        Transport::Sim => {
+            let origins: Vec<Pose> = world
+                .robots
+                .iter()
+                .map(|r| Pose {
+                    x: r.position.x,
+                    y: r.position.y,
+                    theta: r.heading_rad,
+                })
+                .collect();
+            let sim = Simulation::new(
+                world.clone(),
+                SimConfig {
+                    seed: Some(plan.seed),
+                    ..SimConfig::default()
+                },
+            );
+            let pace = if plan.realtime {
+                Pace::WallClock
+            } else {
+                Pace::TokioClock
+            };
+            let (handle, ends, _task) = runtime::spawn(sim, pace);
+            let found = SimDiscoverer::new(ends).discover().await?;
+            (found, Some(origins), Some(handle))
+        }
+        Transport::Addresses(addrs) => {
+            let found = StaticList {
+                addresses: addrs.clone(),
+            }
+            .discover()
+            .await?;
+            (found, None, None)
+        }
+    };
+    let robots = connect_all(&discovered, origins.as_deref()).await?;
+    let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
+    let config = BehaviourConfig {
+        robots: ids,
+        seed: plan.seed,
+        params: plan.params.clone(),
+    };
+    let (done_tx, done_rx) = oneshot::channel();
+    let supervisor = Supervisor::new(
+        robots.clone(),
+        Arc::new(world.track.clone()),
+        (world.arena.width_m, world.arena.height_m),
+        entry.constructor,
+        config,
+        Duration::from_millis(100),
+        Safety::default(),
+        done_tx,
+    )
+    .start();
+    let started = tokio::time::Instant::now();
+    let mut done_rx = done_rx;
+    let aborted = tokio::select! {
+        o = &mut done_rx => Some(o),
+        _ = tokio::time::sleep(plan.duration) => {
+            supervisor.do_send(Abort(format!("did not finish within {:?}", plan.duration)));
+            None
+        }
+        _ = tokio::signal::ctrl_c() => {
+            supervisor.do_send(Abort("interrupted (Ctrl-C)".into()));
+            None
+        }
+    };
+    // After an abort the supervisor stops every robot and still sends its outcome.
+    let outcome = match aborted {
+        Some(o) => o,
+        None => done_rx.await,
+    }
+    .context("supervisor stopped without a verdict")?;
+    let experiment_time = tokio::time::Instant::now() - started;
+    // Let stop commands reach the robots before the ground truth is taken.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let truth = match &sim {
+        Some(h) => h.truth().await,
+        None => None,
+    };
+    let mut per_robot = Vec::new();
+    for (i, (id, robot)) in robots.iter().enumerate() {
+        let snap = robot.snapshot().await?;
+        let truth_pose = truth
+            .as_ref()
+            .and_then(|t| t.robots.iter().find(|(r, _)| r == id).map(|(_, p)| *p));
+        per_robot.push(RobotReport {
+            id: *id,
+            odometry: snap.pose,
+            truth: truth_pose.map(|p| Pose {
+                x: p.x,
+                y: p.y,
+                theta: p.theta,
+            }),
+            distance_m: truth.as_ref().and_then(|t| t.distances_m.get(i).copied()),
+            link: snap.link,
+        });
+        robot.close();
+    }
+    if let Some(h) = &sim {
+        h.stop();
+    }
+    Ok(Report {
+        behaviour: plan.behaviour.clone(),
+        world: world.name.clone(),
+        seed: plan.seed,
+        verdict: outcome.verdict,
+        robots: per_robot,
+        robot_collisions: truth.as_ref().map(|t| t.robot_collisions),
+        wall_contacts: truth.as_ref().map(|t| t.wall_contacts),
+        held_intents: outcome
+            .held
+            .iter()
+            .map(|(t, i, why)| format!("{t:?}: {i:?}: {why}"))
+            .collect(),
+        encounters: outcome.encounters.len(),
+        restarts: outcome.restarts,
+        experiment_time,
+        wall_time: wall.elapsed(),
+    })
+}
+
+async fn connect_all(found: &[Discovered], origins: Option<&[Pose]>) -> Result<Vec<(u16, Robot)>> {
+    let mut robots = Vec::new();
+    for (i, d) in found.iter().enumerate() {
+        let config = RobotConfig {
+            origin: origins.and_then(|o| o.get(i).copied()).unwrap_or_default(),
+            ..RobotConfig::default()
+        };
+        let robot = Robot::start(Arc::clone(&d.connector), config);
+        let hello = tokio::time::timeout(Duration::from_secs(10), robot.connected())
+            .await
+            .with_context(|| format!("{} did not say hello within 10 s", d.name))??;
+        tracing::info!(robot = { hello.robot_id }, peer = %d.connector.peer(), "connected");
+        robots.push((hello.robot_id, robot));
+    }
+    Ok(robots)
+}

@@ -1,0 +1,223 @@
+//! The experiment report: the behaviour's verdict and figures, per-robot odometry against ground
+//! truth, distances, collisions, link statistics, and simulated and wall time; as text or JSON.
+
+use std::fmt;
+use std::time::Duration;
+
+use behaviours::Verdict;
+use robot_actor::actor::LinkStats;
+use robot_actor::Pose;
+use serde::Serialize;
+
+/// One robot's part of the report.
+#[derive(Clone, Debug)]
+pub struct RobotReport {
+    /// Robot id.
+    pub id: u16,
+    /// Final odometry pose.
+    pub odometry: Pose,
+    /// Final true pose (simulated robots only).
+    pub truth: Option<Pose>,
+    /// True distance driven, metres (simulated robots only).
+    pub distance_m: Option<f64>,
+    /// Link statistics.
+    pub link: LinkStats,
+}
+
+impl RobotReport {
+    /// Odometry position error against ground truth, metres.
+    pub fn odometry_error_m(&self) -> Option<f64> {
+        self.truth
+            .map(|t| (t.x - self.odometry.x).hypot(t.y - self.odometry.y))
+    }
+
+    /// Odometry heading error against ground truth, degrees.
+    pub fn heading_error_deg(&self) -> Option<f64> {
+        self.truth
+            .map(|t| (t.theta - self.odometry.theta).to_degrees())
+    }
+}
+
+/// Everything an experiment produced.
+#[derive(Clone, Debug)]
+pub struct Report {
+    /// Behaviour name.
+    pub behaviour: String,
+    /// World name.
+    pub world: String,
+    /// Seed.
+    pub seed: u64,
+    /// The verdict.
+    pub verdict: Verdict,
+    /// Per-robot results.
+    pub robots: Vec<RobotReport>,
+    /// Robot–robot contacts (ground truth; simulated robots only).
+    pub robot_collisions: Option<usize>,
+    /// Robot–wall contacts (ground truth; simulated robots only).
+    pub wall_contacts: Option<usize>,
+    /// Intents the safety check held back.
+    pub held_intents: Vec<String>,
+    /// Encounters reported by the robots.
+    pub encounters: usize,
+    /// Behaviour restarts.
+    pub restarts: u32,
+    /// Experiment time on the experiment's clock (simulated when simulating).
+    pub experiment_time: Duration,
+    /// Wall-clock time of the whole run.
+    pub wall_time: Duration,
+}
+
+#[derive(Serialize)]
+struct JsonRobot {
+    id: u16,
+    odometry: [f64; 3],
+    truth: Option<[f64; 3]>,
+    odometry_error_mm: Option<f64>,
+    heading_error_deg: Option<f64>,
+    distance_m: Option<f64>,
+    packets_in: u64,
+    packets_out: u64,
+    checksum_errors: u64,
+    dropped_frames: u64,
+    rtt_mean_ms: Option<f64>,
+    link_losses: u64,
+    reconnects: u64,
+}
+
+#[derive(Serialize)]
+struct JsonReport<'a> {
+    behaviour: &'a str,
+    world: &'a str,
+    seed: u64,
+    success: bool,
+    summary: &'a str,
+    metrics: std::collections::BTreeMap<&'a str, f64>,
+    robots: Vec<JsonRobot>,
+    robot_collisions: Option<usize>,
+    wall_contacts: Option<usize>,
+    held_intents: &'a [String],
+    encounters: usize,
+    restarts: u32,
+    experiment_time_s: f64,
+    wall_time_s: f64,
+}
+
+impl Report {
+    /// The report as JSON.
+    pub fn to_json(&self) -> String {
+        let pose = |p: Pose| [p.x, p.y, p.theta];
+        let j = JsonReport {
+            behaviour: &self.behaviour,
+            world: &self.world,
+            seed: self.seed,
+            success: self.verdict.success,
+            summary: &self.verdict.summary,
+            metrics: self
+                .verdict
+                .metrics
+                .iter()
+                .map(|(k, v)| (k.as_str(), *v))
+                .collect(),
+            robots: self
+                .robots
+                .iter()
+                .map(|r| JsonRobot {
+                    id: r.id,
+                    odometry: pose(r.odometry),
+                    truth: r.truth.map(pose),
+                    odometry_error_mm: r.odometry_error_m().map(|e| e * 1e3),
+                    heading_error_deg: r.heading_error_deg(),
+                    distance_m: r.distance_m,
+                    packets_in: r.link.packets_in,
+                    packets_out: r.link.packets_out,
+                    checksum_errors: r.link.checksum_errors,
+                    dropped_frames: r.link.dropped_frames,
+                    rtt_mean_ms: r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3),
+                    link_losses: r.link.losses,
+                    reconnects: r.link.reconnects,
+                })
+                .collect(),
+            robot_collisions: self.robot_collisions,
+            wall_contacts: self.wall_contacts,
+            held_intents: &self.held_intents,
+            encounters: self.encounters,
+            restarts: self.restarts,
+            experiment_time_s: self.experiment_time.as_secs_f64(),
+            wall_time_s: self.wall_time.as_secs_f64(),
+        };
+        serde_json::to_string_pretty(&j).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    }
+}
+
+impl fmt::Display for Report {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let verdict = if self.verdict.success {
+            "SUCCESS"
+        } else {
+            "FAILURE"
+        };
+        writeln!(
+            f,
+            "{} on {} (seed {}): {verdict}",
+            self.behaviour, self.world, self.seed
+        )?;
+        writeln!(f, "  {}", self.verdict.summary)?;
+        for (k, v) in &self.verdict.metrics {
+            writeln!(f, "  {k}: {v:.3}")?;
+        }
+        writeln!(
+            f,
+            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  driven [m]  rtt [ms]  in/out packets  losses"
+        )?;
+        for r in &self.robots {
+            let truth = r.truth.map_or("        -        ".to_string(), |t| {
+                format!("{:7.1},{:7.1}", t.x * 1e3, t.y * 1e3)
+            });
+            let num = |v: Option<f64>, w: usize, p: usize| {
+                v.map_or(format!("{:>w$}", "-"), |v| format!("{v:w$.p$}"))
+            };
+            writeln!(
+                f,
+                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {}  {}  {:>7}/{:<7} {:>6}",
+                r.id,
+                r.odometry.x * 1e3,
+                r.odometry.y * 1e3,
+                num(r.odometry_error_m().map(|e| e * 1e3), 10, 1),
+                num(r.heading_error_deg(), 17, 2),
+                num(r.distance_m, 10, 3),
+                num(r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3), 8, 1),
+                r.link.packets_in,
+                r.link.packets_out,
+                r.link.losses,
+            )?;
+        }
+        if let Some(c) = self.robot_collisions {
+            writeln!(
+                f,
+                "  robot-robot collisions: {c}; wall contacts: {}",
+                self.wall_contacts.unwrap_or(0)
+            )?;
+        }
+        writeln!(
+            f,
+            "  encounters: {}; behaviour restarts: {}",
+            self.encounters, self.restarts
+        )?;
+        if !self.held_intents.is_empty() {
+            writeln!(
+                f,
+                "  intents held back by the safety check: {}",
+                self.held_intents.len()
+            )?;
+            for h in self.held_intents.iter().take(5) {
+                writeln!(f, "    {h}")?;
+            }
+        }
+        write!(
+            f,
+            "  experiment time {:.2} s, wall time {:.2} s",
+            self.experiment_time.as_secs_f64(),
+            self.wall_time.as_secs_f64()
+        )
+    }
+}

@@ -1,0 +1,346 @@
+//! The supervisor actor (thesis 3.1): one place that knows every robot. It keeps the world model
+//! (odometry poses and reflected states in a `DashMap` others read without asking it, the robots'
+//! places on the track, the encounter log), feeds the behaviour snapshots and events, checks every
+//! intent for safety before it reaches a robot, and stops the team when the behaviour fails.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use actix::prelude::*;
+use behaviours::actor::{Event, Panicked, Reply, Snapshot, Start};
+use behaviours::{
+    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, RobotView, Verdict,
+    WorldSnapshot,
+};
+use dashmap::DashMap;
+use robot_actor::actor::{Command, Enqueue};
+use robot_actor::{Robot, RobotEvent, RobotEventKind, StateUpdated};
+use simulator::world::Track;
+use tokio::sync::oneshot;
+use tokio::time::Instant;
+use tracing::{info, warn};
+
+use crate::safety::Safety;
+
+/// Behaviour restarts allowed before the experiment fails.
+pub const MAX_RESTARTS: u32 = 3;
+/// Time between stopping every robot after a behaviour panic and starting it again.
+pub const RESTART_DELAY: Duration = Duration::from_millis(500);
+
+/// How an experiment ended.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// The behaviour's verdict (or the supervisor's, if the behaviour could not finish).
+    pub verdict: Verdict,
+    /// Intents held back by the safety check: (time, intent, reason).
+    pub held: Vec<(Duration, Intent, String)>,
+    /// Every encounter reported.
+    pub encounters: Vec<Encounter>,
+    /// Behaviour restarts after a panic.
+    pub restarts: u32,
+}
+
+/// Ends the experiment now (Ctrl-C, time limit): every robot is stopped.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct Abort(pub String);
+
+#[derive(Message)]
+#[rtype(result = "()")]
+struct Tick;
+
+/// The supervisor.
+pub struct Supervisor {
+    robots: Vec<(u16, Robot)>,
+    model: Arc<DashMap<u16, RobotView>>,
+    track: Arc<Track>,
+    arena: (f64, f64),
+    encounters_new: Vec<Encounter>,
+    encounters: Vec<Encounter>,
+    constructor: Constructor,
+    config: BehaviourConfig,
+    behaviour: Option<Addr<BehaviourActor>>,
+    started_at: Instant,
+    snapshot_period: Duration,
+    safety: Safety,
+    held: Vec<(Duration, Intent, String)>,
+    restarts: u32,
+    done: Option<oneshot::Sender<Outcome>>,
+    started: bool,
+}
+
+impl Supervisor {
+    /// A supervisor over connected robots, running the behaviour built by `constructor`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        robots: Vec<(u16, Robot)>,
+        track: Arc<Track>,
+        arena: (f64, f64),
+        constructor: Constructor,
+        config: BehaviourConfig,
+        snapshot_period: Duration,
+        safety: Safety,
+        done: oneshot::Sender<Outcome>,
+    ) -> Self {
+        Self {
+            robots,
+            model: Arc::new(DashMap::new()),
+            track,
+            arena,
+            encounters_new: Vec::new(),
+            encounters: Vec::new(),
+            constructor,
+            config,
+            behaviour: None,
+            started_at: Instant::now(),
+            snapshot_period,
+            safety,
+            held: Vec::new(),
+            restarts: 0,
+            done: Some(done),
+            started: false,
+        }
+    }
+
+    /// The live world model, readable from any thread without messaging the supervisor.
+    pub fn model(&self) -> Arc<DashMap<u16, RobotView>> {
+        Arc::clone(&self.model)
+    }
+
+    fn snapshot(&mut self) -> WorldSnapshot {
+        let mut robots: Vec<RobotView> = self.model.iter().map(|e| e.value().clone()).collect();
+        robots.sort_by_key(|r| r.id);
+        WorldSnapshot {
+            time: Instant::now() - self.started_at,
+            robots,
+            encounters: std::mem::take(&mut self.encounters_new),
+            arena: self.arena,
+        }
+    }
+
+    fn robot(&self, id: u16) -> Option<&Robot> {
+        self.robots.iter().find(|(i, _)| *i == id).map(|(_, r)| r)
+    }
+
+    fn stop_all(&self) {
+        for (_, r) in &self.robots {
+            r.addr().do_send(Command::Stop);
+        }
+    }
+
+    fn finish(&mut self, verdict: Verdict, ctx: &mut Context<Self>) {
+        self.stop_all();
+        if let Some(done) = self.done.take() {
+            info!(success = verdict.success, "{}", verdict.summary);
+            let _ = done.send(Outcome {
+                verdict,
+                held: std::mem::take(&mut self.held),
+                encounters: self.encounters.clone(),
+                restarts: self.restarts,
+            });
+        }
+        ctx.stop();
+    }
+
+    fn start_behaviour(&mut self, ctx: &mut Context<Self>) {
+        let behaviour = BehaviourActor::new((self.constructor)(&self.config)).start();
+        self.behaviour = Some(behaviour.clone());
+        let world = self.snapshot();
+        let reply = behaviour.send(Start(world));
+        ctx.spawn(
+            reply
+                .into_actor(self)
+                .map(|r, act, ctx| act.on_reply(r, ctx)),
+        );
+    }
+
+    fn on_reply(
+        &mut self,
+        reply: Result<Result<Reply, Panicked>, MailboxError>,
+        ctx: &mut Context<Self>,
+    ) {
+        match reply {
+            Ok(Ok(reply)) => {
+                let world = self.snapshot_peek();
+                for intent in reply.intents {
+                    self.carry_out(intent, &world);
+                }
+                if let Some(verdict) = reply.verdict {
+                    self.finish(verdict, ctx);
+                }
+            }
+            Ok(Err(Panicked(why))) => {
+                warn!(why, "behaviour panicked: stopping every robot");
+                self.stop_all();
+                self.restarts += 1;
+                if self.restarts > MAX_RESTARTS {
+                    self.finish(
+                        Verdict::failure(format!(
+                            "behaviour panicked {} times: {why}",
+                            self.restarts
+                        )),
+                        ctx,
+                    );
+                } else {
+                    // Restart only once the stop has reached every robot and its last events
+                    // (the aborted moves) have gone by: they belong to the old instance.
+                    self.behaviour = None;
+                    ctx.run_later(RESTART_DELAY, |act, ctx| act.start_behaviour(ctx));
+                }
+            }
+            Err(e) => warn!(error = %e, "behaviour unreachable"),
+        }
+    }
+
+    /// The world as it is, without consuming the new encounters.
+    fn snapshot_peek(&self) -> WorldSnapshot {
+        let mut robots: Vec<RobotView> = self.model.iter().map(|e| e.value().clone()).collect();
+        robots.sort_by_key(|r| r.id);
+        WorldSnapshot {
+            time: Instant::now() - self.started_at,
+            robots,
+            encounters: Vec::new(),
+            arena: self.arena,
+        }
+    }
+
+    fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) {
+        if let Err(reason) = self.safety.check(&intent, world) {
+            warn!(?intent, reason, "intent held back");
+            self.held.push((world.time, intent, reason));
+            return;
+        }
+        let Some(robot) = self.robot(intent.robot()) else {
+            return;
+        };
+        let addr = robot.addr();
+        match intent {
+            Intent::Move { command, .. } => addr.do_send(Enqueue(command)),
+            Intent::FollowLine { speed, .. } => addr.do_send(Command::FollowLine(speed)),
+            Intent::WheelSpeeds { left, right, .. } => {
+                addr.do_send(Command::WheelSpeeds(left, right))
+            }
+            Intent::ClearQueue { .. } => addr.do_send(Command::ClearQueue),
+            Intent::Stop { .. } => addr.do_send(Command::Stop),
+            Intent::Led { rgb, .. } => addr.do_send(Command::Led(rgb[0], rgb[1], rgb[2])),
+            Intent::IrMessage { message, .. } => addr.do_send(Command::IrMessage(message)),
+        }
+    }
+}
+
+impl Actor for Supervisor {
+    type Context = Context<Self>;
+
+    fn started(&mut self, ctx: &mut Self::Context) {
+        self.started_at = Instant::now();
+        for (id, robot) in &self.robots {
+            robot.subscribe(ctx.address().recipient());
+            robot.subscribe_events(ctx.address().recipient());
+            self.model.insert(
+                *id,
+                RobotView {
+                    id: *id,
+                    connected: false,
+                    pose: Default::default(),
+                    state: Default::default(),
+                    pending_moves: 0,
+                    on_track: None,
+                },
+            );
+        }
+        ctx.run_interval(self.snapshot_period, |_, ctx| ctx.notify(Tick));
+    }
+}
+
+impl Handler<StateUpdated> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, u: StateUpdated, _: &mut Context<Self>) {
+        let sensor = nalgebra::Point2::new(
+            u.pose.x + 0.016 * u.pose.theta.cos(),
+            u.pose.y + 0.016 * u.pose.theta.sin(),
+        );
+        let on_track = self
+            .track
+            .nearest(sensor)
+            .filter(|n| n.distance_m < 0.02)
+            .map(|n| (n.edge, n.offset_m, n.distance_m));
+        if let Some(mut view) = self.model.get_mut(&u.robot_id) {
+            view.connected = true;
+            view.pose = u.pose;
+            view.state = u.state;
+            view.pending_moves = usize::from(u.state.locomotion.queue_len);
+            view.on_track = on_track;
+        }
+    }
+}
+
+impl Handler<RobotEvent> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, e: RobotEvent, ctx: &mut Context<Self>) {
+        match &e.kind {
+            RobotEventKind::Encounter(enc) => {
+                let encounter = Encounter {
+                    observer: e.robot_id,
+                    seen: enc.robot_id,
+                    side: enc.side,
+                    relative_heading_deg: enc.relative_heading_deg,
+                    range_mm: enc.range_mm,
+                    at: e.at - self.started_at,
+                };
+                self.encounters.push(encounter);
+                self.encounters_new.push(encounter);
+            }
+            RobotEventKind::LinkLost => {
+                if let Some(mut v) = self.model.get_mut(&e.robot_id) {
+                    v.connected = false;
+                }
+                warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
+            }
+            _ => {}
+        }
+        if let Some(b) = &self.behaviour {
+            let msg = Event {
+                robot: e.robot_id,
+                kind: e.kind,
+                world: self.snapshot_peek(),
+            };
+            let reply = b.send(msg);
+            ctx.spawn(
+                reply
+                    .into_actor(self)
+                    .map(|r, act, ctx| act.on_reply(r, ctx)),
+            );
+        }
+    }
+}
+
+impl Handler<Tick> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, _: Tick, ctx: &mut Context<Self>) {
+        if !self.started {
+            // Start once every robot has reported a state, so the behaviour sees real poses.
+            if self.model.iter().all(|v| v.connected) {
+                self.started = true;
+                self.started_at = Instant::now();
+                self.start_behaviour(ctx);
+            }
+            return;
+        }
+        if let Some(b) = self.behaviour.clone() {
+            let world = self.snapshot();
+            let reply = b.send(Snapshot(world));
+            ctx.spawn(
+                reply
+                    .into_actor(self)
+                    .map(|r, act, ctx| act.on_reply(r, ctx)),
+            );
+        }
+    }
+}
+
+impl Handler<Abort> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, msg: Abort, ctx: &mut Context<Self>) {
+        self.finish(Verdict::failure(msg.0), ctx);
+    }
+}

@@ -1,0 +1,148 @@
+//! Whole experiments through the coordinator, on simulated robots, judged from ground truth.
+
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Verdict, WorldSnapshot};
+use coordinator::{Plan, Report, Transport};
+
+fn paused<F: std::future::Future>(f: F) -> F::Output {
+    let sys = actix::System::with_tokio_rt(|| {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+            .expect("runtime")
+    });
+    sys.block_on(f)
+}
+
+fn plan(behaviour: &str, robots: usize) -> Plan {
+    Plan {
+        behaviour: behaviour.into(),
+        world: None,
+        robots: Some(robots),
+        transport: Transport::Sim,
+        seed: 1,
+        realtime: false,
+        duration: Duration::from_secs(60),
+        params: Default::default(),
+    }
+}
+
+fn run(plan: Plan, registry: &Registry) -> Report {
+    paused(coordinator::run(plan, registry)).expect("experiment runs")
+}
+
+#[test]
+fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
+    let report = run(plan("square_walk", 3), &Registry::builtin());
+    assert!(report.verdict.success, "{report}");
+    let world = coordinator::load_world("open").unwrap();
+    for r in &report.robots {
+        let start = world.robots.iter().find(|s| s.id == r.id).unwrap();
+        let truth = r.truth.expect("simulated ground truth");
+        let closure = (truth.x - start.position.x).hypot(truth.y - start.position.y);
+        assert!(
+            closure < 0.010,
+            "robot {} closed {:.1} mm from its start",
+            r.id,
+            closure * 1e3
+        );
+        assert!(r.odometry_error_m().unwrap() < 0.010, "{report}");
+        assert!(
+            r.distance_m.unwrap() > 0.39,
+            "robot {} drove {:?} m",
+            r.id,
+            r.distance_m
+        );
+    }
+    assert_eq!(report.robot_collisions, Some(0));
+}
+
+/// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
+struct Fragile {
+    inner: behaviours::square_walk::SquareWalk,
+    snapshots: usize,
+}
+
+static PANICKED_ONCE: AtomicBool = AtomicBool::new(false);
+
+impl Behaviour for Fragile {
+    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.inner.start(world)
+    }
+    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.snapshots += 1;
+        if self.snapshots == 2 && !PANICKED_ONCE.swap(true, Ordering::SeqCst) {
+            panic!("deliberate failure");
+        }
+        self.inner.on_snapshot(world)
+    }
+    fn on_event(
+        &mut self,
+        robot: u16,
+        e: &behaviours::RobotEventKind,
+        w: &WorldSnapshot,
+    ) -> Vec<Intent> {
+        self.inner.on_event(robot, e, w)
+    }
+    fn verdict(&self) -> Option<Verdict> {
+        self.inner.verdict()
+    }
+}
+
+#[test]
+fn a_panicking_behaviour_is_restarted_after_every_robot_stopped() {
+    let mut registry = Registry::builtin();
+    registry.register("fragile", "panics once", "open", |cfg: &BehaviourConfig| {
+        Box::new(Fragile {
+            inner: behaviours::square_walk::SquareWalk::new(cfg),
+            snapshots: 0,
+        })
+    });
+    let report = run(plan("fragile", 2), &registry);
+    assert_eq!(report.restarts, 1, "{report}");
+    // The first walk was stopped mid-way; the restarted instance walked its eight moves per robot
+    // from wherever the robots stopped and reached a verdict of its own.
+    assert!(
+        report.verdict.summary.contains("2 squares walked"),
+        "{report}"
+    );
+    let closure = report
+        .verdict
+        .metrics
+        .iter()
+        .find(|(k, _)| k == "worst_closure_mm")
+        .map(|(_, v)| *v)
+        .unwrap();
+    assert!(closure < 10.0, "{report}");
+}
+
+#[test]
+fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
+    let bin = env!("CARGO_BIN_EXE_coordinator");
+    let ok = Command::new(bin)
+        .args(["--behaviour", "square_walk", "--robots", "2"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&ok.stdout);
+    assert!(ok.status.success(), "{text}");
+    assert!(
+        text.contains("SUCCESS") && text.contains("error [mm]"),
+        "{text}"
+    );
+    let bad = Command::new(bin)
+        .args(["--behaviour", "square_walk", "--robots", "9"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("room for 1 to 4 robots"));
+    let unknown = Command::new(bin)
+        .args(["--behaviour", "dance"])
+        .output()
+        .unwrap();
+    assert_eq!(unknown.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("square_walk"));
+}
