@@ -107,15 +107,11 @@ impl Supervisor {
         Arc::clone(&self.model)
     }
 
+    /// The world now, handing over the encounters gathered since the last snapshot.
     fn snapshot(&mut self) -> WorldSnapshot {
-        let mut robots: Vec<RobotView> = self.model.iter().map(|e| e.value().clone()).collect();
-        robots.sort_by_key(|r| r.id);
-        WorldSnapshot {
-            time: Instant::now() - self.started_at,
-            robots,
-            encounters: std::mem::take(&mut self.encounters_new),
-            arena: self.arena,
-        }
+        let mut world = self.snapshot_peek();
+        world.encounters = std::mem::take(&mut self.encounters_new);
+        world
     }
 
     fn robot(&self, id: u16) -> Option<&Robot> {
