@@ -1,9 +1,12 @@
 //! `square_walk`: every robot walks a 0.1 m square (thesis A.1) and must end where it began.
 //!
-//! Success when every robot completed all eight moves and its odometry closes within 10 mm and 5°
-//! of its start; the coordinator's report adds the ground truth.
+//! The square is four corners in the world frame. If a robot's link drops mid-walk (its watchdog
+//! then stops it and clears its queue), the walk is planned again from where the robot stands to
+//! the next corner once it is back. Success when every robot finished its moves and its odometry
+//! closes within 10 mm and 5° of its start; the coordinator's report adds the ground truth.
 
 use std::collections::BTreeMap;
+use std::f64::consts::{FRAC_PI_2, PI, TAU};
 
 use protocol::packets::MoveOutcome;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
@@ -12,13 +15,17 @@ use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
 
 const SIDE_M: f32 = 0.1;
 const SPEED_MPS: f32 = 0.2;
-const MOVES: usize = 8;
 
 /// Per-robot progress.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 struct Walker {
-    start: Option<Pose>,
-    completed: usize,
+    start: Pose,
+    /// Moves finished, in plan order: leg `k` is a straight to corner `k + 1` then a quarter turn.
+    done: usize,
+    /// Moves the current plan expects in all.
+    expected: usize,
+    /// The link dropped; the queue on the robot is gone until a new plan is sent.
+    interrupted: bool,
     failed: bool,
     end: Option<Pose>,
 }
@@ -28,6 +35,10 @@ struct Walker {
 pub struct SquareWalk {
     side_m: f32,
     walkers: BTreeMap<u16, Walker>,
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + PI).rem_euclid(TAU) - PI
 }
 
 impl SquareWalk {
@@ -43,35 +54,87 @@ impl SquareWalk {
             walkers: BTreeMap::new(),
         }
     }
+
+    /// Corner `c` (1..=4; 4 is the start) and the heading after turning there.
+    fn corner(&self, start: Pose, c: usize) -> ((f64, f64), f64) {
+        let side = f64::from(self.side_m);
+        let mut p = (start.x, start.y);
+        for k in 0..c {
+            let h = start.theta + FRAC_PI_2 * k as f64;
+            p = (p.0 + side * h.cos(), p.1 + side * h.sin());
+        }
+        (p, start.theta + FRAC_PI_2 * c as f64)
+    }
+
+    fn moves(robot: u16, commands: Vec<MoveCommand>) -> Vec<Intent> {
+        commands
+            .into_iter()
+            .map(|command| Intent::Move { robot, command })
+            .collect()
+    }
+
+    /// The rest of the square from `pose`, for a walker that finished `done` moves of its plan.
+    fn replan(&self, w: &Walker, pose: Pose) -> Vec<MoveCommand> {
+        let legs_done = w.done / 2;
+        let mut plan = Vec::new();
+        let rotate = |a: f64| MoveCommand::Rotate {
+            angle_deg: wrap(a).to_degrees() as f32,
+            speed_mps: SPEED_MPS,
+        };
+        let mut heading = pose.theta;
+        let first = legs_done + 1;
+        if first <= 4 {
+            let ((x, y), turn_to) = self.corner(w.start, first);
+            if w.done % 2 == 0 {
+                let (dx, dy) = (x - pose.x, y - pose.y);
+                let bearing = dy.atan2(dx);
+                plan.push(rotate(bearing - heading));
+                plan.push(MoveCommand::Straight {
+                    distance_m: dx.hypot(dy) as f32,
+                    speed_mps: SPEED_MPS,
+                });
+                heading = bearing;
+            }
+            plan.push(rotate(turn_to - heading));
+        }
+        for _ in first + 1..=4 {
+            plan.push(MoveCommand::Straight {
+                distance_m: self.side_m,
+                speed_mps: SPEED_MPS,
+            });
+            plan.push(rotate(FRAC_PI_2));
+        }
+        plan
+    }
 }
 
 impl Behaviour for SquareWalk {
     fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         let mut intents = Vec::new();
         for r in &world.robots {
+            let mut plan = Vec::new();
+            for _ in 0..4 {
+                plan.push(MoveCommand::Straight {
+                    distance_m: self.side_m,
+                    speed_mps: SPEED_MPS,
+                });
+                plan.push(MoveCommand::Rotate {
+                    angle_deg: 90.0,
+                    speed_mps: SPEED_MPS,
+                });
+            }
             self.walkers.insert(
                 r.id,
                 Walker {
-                    start: Some(r.pose),
-                    ..Walker::default()
+                    start: r.pose,
+                    done: 0,
+                    expected: plan.len(),
+                    interrupted: false,
+                    failed: false,
+                    end: None,
                 },
             );
-            for _ in 0..4 {
-                intents.push(Intent::Move {
-                    robot: r.id,
-                    command: MoveCommand::Straight {
-                        distance_m: self.side_m,
-                        speed_mps: SPEED_MPS,
-                    },
-                });
-                intents.push(Intent::Move {
-                    robot: r.id,
-                    command: MoveCommand::Rotate {
-                        angle_deg: 90.0,
-                        speed_mps: SPEED_MPS,
-                    },
-                });
-            }
+            intents.extend(Self::moves(r.id, plan));
         }
         intents
     }
@@ -79,7 +142,7 @@ impl Behaviour for SquareWalk {
     fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         for r in &world.robots {
             if let Some(w) = self.walkers.get_mut(&r.id) {
-                if w.completed == MOVES && w.end.is_none() && r.pending_moves == 0 {
+                if w.done == w.expected && w.end.is_none() && r.pending_moves == 0 {
                     w.end = Some(r.pose);
                 }
             }
@@ -87,16 +150,44 @@ impl Behaviour for SquareWalk {
         Vec::new()
     }
 
-    fn on_event(&mut self, robot: u16, event: &RobotEventKind, _: &WorldSnapshot) -> Vec<Intent> {
-        if let (Some(w), RobotEventKind::MoveFinished { outcome, .. }) =
-            (self.walkers.get_mut(&robot), event)
-        {
-            match outcome {
-                MoveOutcome::Completed => w.completed += 1,
-                _ => w.failed = true,
+    fn on_event(
+        &mut self,
+        robot: u16,
+        event: &RobotEventKind,
+        world: &WorldSnapshot,
+    ) -> Vec<Intent> {
+        let Some(w) = self.walkers.get(&robot).cloned() else {
+            return Vec::new();
+        };
+        match event {
+            RobotEventKind::MoveFinished { outcome, .. } if !w.interrupted => {
+                let w = self.walkers.get_mut(&robot).expect("present");
+                match outcome {
+                    MoveOutcome::Completed => w.done += 1,
+                    _ => w.failed = true,
+                }
+                Vec::new()
             }
+            RobotEventKind::LinkLost => {
+                if let Some(w) = self.walkers.get_mut(&robot) {
+                    w.interrupted = w.done < w.expected;
+                }
+                Vec::new()
+            }
+            RobotEventKind::Connected(_) if w.interrupted => {
+                let Some(pose) = world.robot(robot).map(|r| r.pose) else {
+                    return Vec::new();
+                };
+                let plan = self.replan(&w, pose);
+                let w = self.walkers.get_mut(&robot).expect("present");
+                // The new plan counts from zero: its legs are the remaining corners.
+                w.done = 0;
+                w.expected = plan.len();
+                w.interrupted = false;
+                Self::moves(robot, plan)
+            }
+            _ => Vec::new(),
         }
-        Vec::new()
     }
 
     fn verdict(&self) -> Option<Verdict> {
@@ -112,12 +203,10 @@ impl Behaviour for SquareWalk {
         let mut worst_mm: f64 = 0.0;
         let mut worst_deg: f64 = 0.0;
         for w in self.walkers.values() {
-            let (Some(s), Some(e)) = (w.start, w.end) else {
-                continue;
-            };
+            let Some(e) = w.end else { continue };
+            let s = w.start;
             worst_mm = worst_mm.max((e.x - s.x).hypot(e.y - s.y) * 1e3);
-            let turned = (e.theta - s.theta).to_degrees();
-            worst_deg = worst_deg.max((turned - 360.0).abs());
+            worst_deg = worst_deg.max(wrap(e.theta - s.theta).to_degrees().abs());
         }
         let ok = worst_mm < 10.0 && worst_deg < 5.0;
         let summary = format!(
@@ -160,6 +249,11 @@ mod tests {
         }
     }
 
+    const DONE: RobotEventKind = RobotEventKind::MoveFinished {
+        id: 1,
+        outcome: MoveOutcome::Completed,
+    };
+
     #[test]
     fn queues_eight_moves_per_robot_and_judges_the_closure() {
         let start = Pose {
@@ -171,27 +265,23 @@ mod tests {
         let intents = b.start(&world(&[(1, start), (2, start)], 0));
         assert_eq!(intents.len(), 16);
         assert!(b.verdict().is_none());
-        let done = RobotEventKind::MoveFinished {
-            id: 1,
-            outcome: MoveOutcome::Completed,
-        };
         for id in [1, 2] {
-            for _ in 0..MOVES {
-                b.on_event(id, &done, &world(&[], 0));
+            for _ in 0..8 {
+                b.on_event(id, &DONE, &world(&[], 0));
             }
         }
         let end = Pose {
             x: 0.303,
             y: 0.3,
-            theta: std::f64::consts::TAU,
+            theta: TAU,
         };
         b.on_snapshot(&world(&[(1, end), (2, end)], 0));
         let v = b.verdict().unwrap();
         assert!(v.success, "{v:?}");
         let mut far = SquareWalk::new(&BehaviourConfig::default());
         far.start(&world(&[(1, start)], 0));
-        for _ in 0..MOVES {
-            far.on_event(1, &done, &world(&[], 0));
+        for _ in 0..8 {
+            far.on_event(1, &DONE, &world(&[], 0));
         }
         far.on_snapshot(&world(&[(1, Pose { x: 0.32, ..end })], 0));
         assert!(!far.verdict().unwrap().success);
@@ -207,5 +297,51 @@ mod tests {
         };
         b.on_event(1, &stopped, &world(&[], 0));
         assert!(!b.verdict().unwrap().success);
+    }
+
+    #[test]
+    fn a_walk_cut_mid_leg_is_planned_again_to_the_next_corner() {
+        let start = Pose {
+            x: 0.3,
+            y: 0.3,
+            theta: 0.0,
+        };
+        let mut b = SquareWalk::new(&BehaviourConfig::default());
+        b.start(&world(&[(1, start)], 0));
+        // First leg done (straight + turn), then the link drops 4 cm into the second straight.
+        b.on_event(1, &DONE, &world(&[], 0));
+        b.on_event(1, &DONE, &world(&[], 0));
+        b.on_event(1, &RobotEventKind::LinkLost, &world(&[], 0));
+        let here = Pose {
+            x: 0.4,
+            y: 0.34,
+            theta: FRAC_PI_2,
+        };
+        let hello = protocol::packets::Hello::new(&protocol::Settings::default(), [0, 1, 0]);
+        let plan = b.on_event(
+            1,
+            &RobotEventKind::Connected(hello),
+            &world(&[(1, here)], 0),
+        );
+        let cmds: Vec<MoveCommand> = plan
+            .iter()
+            .map(|i| match i {
+                Intent::Move { command, .. } => *command,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(
+            cmds.len(),
+            7,
+            "turn, straight, turn to the corner heading, then two legs"
+        );
+        match cmds[1] {
+            MoveCommand::Straight { distance_m, .. } => assert!((distance_m - 0.06).abs() < 1e-4),
+            other => panic!("{other:?}"),
+        }
+        match cmds[2] {
+            MoveCommand::Rotate { angle_deg, .. } => assert!((angle_deg - 90.0).abs() < 1e-3),
+            other => panic!("{other:?}"),
+        }
     }
 }

@@ -49,6 +49,19 @@ pub struct Plan {
     pub duration: Duration,
     /// Behaviour parameters.
     pub params: std::collections::BTreeMap<String, String>,
+    /// Link cuts to inject into simulated robots.
+    pub faults: Vec<LinkFault>,
+}
+
+/// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinkFault {
+    /// Index of the robot in the world's robot list.
+    pub robot: usize,
+    /// When, after the robots are connected.
+    pub at: Duration,
+    /// For how long.
+    pub duration: Duration,
 }
 
 /// Loads a preset by name or a world file by path.
@@ -145,6 +158,17 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         done_tx,
     )
     .start();
+    if let Some(h) = &sim {
+        for fault in plan.faults.iter().copied() {
+            let h = h.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(fault.at).await;
+                h.set_link_up(fault.robot, false);
+                tokio::time::sleep(fault.duration).await;
+                h.set_link_up(fault.robot, true);
+            });
+        }
+    }
     let started = tokio::time::Instant::now();
     let mut done_rx = done_rx;
     let aborted = tokio::select! {

@@ -12,5 +12,5 @@ pub mod report;
 pub mod safety;
 pub mod supervisor;
 
-pub use experiment::{load_world, run, Plan, Transport};
+pub use experiment::{load_world, run, LinkFault, Plan, Transport};
 pub use report::Report;

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Verdict, WorldSnapshot};
-use coordinator::{Plan, Report, Transport};
+use coordinator::{LinkFault, Plan, Report, Transport};
 
 fn paused<F: std::future::Future>(f: F) -> F::Output {
     let sys = actix::System::with_tokio_rt(|| {
@@ -28,6 +28,7 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
         realtime: false,
         duration: Duration::from_secs(60),
         params: Default::default(),
+        faults: Vec::new(),
     }
 }
 
@@ -145,4 +146,27 @@ fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
         .unwrap();
     assert_eq!(unknown.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&unknown.stderr).contains("square_walk"));
+}
+
+#[test]
+fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
+    let mut p = plan("square_walk", 2);
+    p.faults.push(LinkFault {
+        robot: 0,
+        at: Duration::from_millis(1500),
+        duration: Duration::from_millis(1500),
+    });
+    let report = run(p, &Registry::builtin());
+    let cut = &report.robots[0];
+    assert!(cut.link.losses >= 1 && cut.link.reconnects >= 1, "{report}");
+    assert!(report.verdict.success, "{report}");
+    let world = coordinator::load_world("open").unwrap();
+    let start = world.robots[0].position;
+    let truth = cut.truth.unwrap();
+    let closure = (truth.x - start.x).hypot(truth.y - start.y);
+    assert!(
+        closure < 0.010,
+        "cut robot closed {:.1} mm from its start",
+        closure * 1e3
+    );
 }

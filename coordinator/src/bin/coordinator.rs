@@ -104,6 +104,7 @@ fn plan(args: &Args) -> Result<Plan> {
         realtime: args.realtime,
         duration: Duration::from_secs_f64(args.duration),
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
+        faults: Vec::new(),
     })
 }
 
