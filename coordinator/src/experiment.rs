@@ -8,6 +8,7 @@ use std::time::Duration;
 use actix::Actor;
 use anyhow::{anyhow, bail, Context as _, Result};
 use behaviours::{BehaviourConfig, Registry};
+use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
 use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::{Discovered, Discoverer};
@@ -139,7 +140,7 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
             (found, None, None)
         }
     };
-    let robots = connect_all(&discovered, origins.as_deref()).await?;
+    let robots = connect_all(&discovered, origins.as_deref(), &world).await?;
     let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
     let config = BehaviourConfig {
         robots: ids,
@@ -237,7 +238,11 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
     })
 }
 
-async fn connect_all(found: &[Discovered], origins: Option<&[Pose]>) -> Result<Vec<(u16, Robot)>> {
+async fn connect_all(
+    found: &[Discovered],
+    origins: Option<&[Pose]>,
+    world: &World,
+) -> Result<Vec<(u16, Robot)>> {
     let mut robots = Vec::new();
     for (i, d) in found.iter().enumerate() {
         let config = RobotConfig {
@@ -248,6 +253,16 @@ async fn connect_all(found: &[Discovered], origins: Option<&[Pose]>) -> Result<V
         let hello = tokio::time::timeout(Duration::from_secs(10), robot.connected())
             .await
             .with_context(|| format!("{} did not say hello within 10 s", d.name))??;
+        if origins.is_none() {
+            // Robots reached by address start where the world file places their id.
+            if let Some(start) = world.robots.iter().find(|r| r.id == hello.robot_id) {
+                robot.addr().do_send(SetOdometryOrigin(Pose {
+                    x: start.position.x,
+                    y: start.position.y,
+                    theta: start.heading_rad,
+                }));
+            }
+        }
         tracing::info!(robot = { hello.robot_id }, peer = %d.connector.peer(), "connected");
         robots.push((hello.robot_id, robot));
     }

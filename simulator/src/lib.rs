@@ -6,6 +6,7 @@ pub mod drive;
 pub mod ir;
 pub mod link;
 pub mod runtime;
+pub mod serve;
 pub mod sim;
 pub mod spec;
 pub mod world;

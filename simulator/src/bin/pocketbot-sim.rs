@@ -5,12 +5,10 @@ use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use protocol::slip::{self, SlipDecoder};
-use simulator::runtime::{self, Pace};
+use simulator::runtime::Pace;
+use simulator::serve::serve;
 use simulator::world::{file, presets};
 use simulator::{SimConfig, Simulation};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::TcpListener;
 
 /// Serve simulated PocketBot2 robots over TCP (SLIP-framed protocol packets).
 #[derive(Parser, Debug)]
@@ -73,29 +71,23 @@ async fn main() -> Result<()> {
             ..SimConfig::default()
         },
     );
-    let mut listeners = Vec::new();
-    for (i, r) in sim.robots().iter().enumerate() {
-        let port = if args.port_base == 0 {
-            0
-        } else {
-            args.port_base + i as u16
-        };
-        let l = TcpListener::bind((args.bind.as_str(), port))
-            .await
-            .with_context(|| format!("binding robot {} to {}:{port}", r.id(), args.bind))?;
-        println!("robot {} tcp://{}", r.id(), l.local_addr()?);
-        listeners.push(l);
-    }
-    println!("serving {} robots", listeners.len());
     let pace = if args.fast {
         Pace::Unpaced
     } else {
         Pace::WallClock
     };
-    let (handle, ends, task) = runtime::spawn(sim, pace);
-    for (listener, end) in listeners.into_iter().zip(ends) {
-        tokio::spawn(serve_robot(listener, end));
+    let (addrs, handle, task) = serve(sim, &args.bind, args.port_base, pace)
+        .await
+        .with_context(|| {
+            format!(
+                "binding robots on {} from port {}",
+                args.bind, args.port_base
+            )
+        })?;
+    for (id, addr) in &addrs {
+        println!("robot {id} tcp://{addr}");
     }
+    println!("serving {} robots", addrs.len());
     match args.duration {
         Some(secs) => {
             let end = Duration::from_secs_f64(secs);
@@ -114,41 +106,4 @@ async fn main() -> Result<()> {
     handle.stop();
     let _ = task.await;
     Ok(())
-}
-
-/// Bridges one robot's link to one TCP client at a time.
-async fn serve_robot(listener: TcpListener, end: runtime::LinkEnd) {
-    let (sender, mut from_robot) = end.split();
-    loop {
-        let Ok((mut stream, _)) = listener.accept().await else {
-            return;
-        };
-        let _ = stream.set_nodelay(true);
-        while from_robot.try_recv().is_ok() {}
-        sender.connect();
-        let mut decoder = SlipDecoder::<{ protocol::MAX_PACKET }>::new();
-        let mut buf = [0u8; 1024];
-        let mut out = vec![0u8; slip::max_encoded_len(protocol::MAX_PACKET)];
-        loop {
-            tokio::select! {
-                read = stream.read(&mut buf) => {
-                    let n = match read { Ok(0) | Err(_) => break, Ok(n) => n };
-                    for &b in &buf[..n] {
-                        // Corrupt frames are counted by the decoder and dropped here.
-                        if let Ok(Some(frame)) = decoder.push(b) {
-                            sender.send(frame.to_vec());
-                        }
-                    }
-                }
-                packet = from_robot.recv() => {
-                    let Some(p) = packet else { return };
-                    let Ok(n) = slip::encode(&p, &mut out) else { continue };
-                    if stream.write_all(&out[..n]).await.is_err() {
-                        break;
-                    }
-                }
-            }
-        }
-        sender.disconnect();
-    }
 }
