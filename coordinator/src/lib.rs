@@ -1,7 +1,8 @@
 //! The PocketFleet coordinator: runs one supervised multi-robot experiment.
 //!
 //! # Layout
-//! - `supervisor`: the supervisor actor, world model, behaviour supervision.
+//! - `supervisor`: the supervisor actor and behaviour supervision.
+//! - `world_model`: the live world model in a `DashMap`.
 //! - `safety`: the predictive check every intent passes.
 //! - `experiment`: wiring robots, supervisor and behaviour for one run.
 //! - `report`: the experiment report, as text or JSON.
@@ -11,6 +12,7 @@ pub mod experiment;
 pub mod report;
 pub mod safety;
 pub mod supervisor;
+pub mod world_model;
 
 pub use experiment::{load_world, run, LinkFault, Plan, Transport};
 pub use report::Report;

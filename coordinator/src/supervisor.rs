@@ -9,10 +9,8 @@ use std::time::Duration;
 use actix::prelude::*;
 use behaviours::actor::{Event, Panicked, Reply, Snapshot, Start};
 use behaviours::{
-    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, RobotView, Verdict,
-    WorldSnapshot,
+    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, Verdict, WorldSnapshot,
 };
-use dashmap::DashMap;
 use robot_actor::actor::{Command, Enqueue};
 use robot_actor::{Robot, RobotEvent, RobotEventKind, StateUpdated};
 use simulator::world::Track;
@@ -21,6 +19,7 @@ use tokio::time::Instant;
 use tracing::{info, warn};
 
 use crate::safety::Safety;
+use crate::world_model::WorldModel;
 
 /// Behaviour restarts allowed before the experiment fails.
 pub const MAX_RESTARTS: u32 = 3;
@@ -52,8 +51,7 @@ struct Tick;
 /// The supervisor.
 pub struct Supervisor {
     robots: Vec<(u16, Robot)>,
-    model: Arc<DashMap<u16, RobotView>>,
-    track: Arc<Track>,
+    model: WorldModel,
     arena: (f64, f64),
     encounters_new: Vec<Encounter>,
     encounters: Vec<Encounter>,
@@ -84,8 +82,7 @@ impl Supervisor {
     ) -> Self {
         Self {
             robots,
-            model: Arc::new(DashMap::new()),
-            track,
+            model: WorldModel::new(track),
             arena,
             encounters_new: Vec::new(),
             encounters: Vec::new(),
@@ -103,8 +100,8 @@ impl Supervisor {
     }
 
     /// The live world model, readable from any thread without messaging the supervisor.
-    pub fn model(&self) -> Arc<DashMap<u16, RobotView>> {
-        Arc::clone(&self.model)
+    pub fn model(&self) -> WorldModel {
+        self.model.clone()
     }
 
     /// The world now, handing over the encounters gathered since the last snapshot.
@@ -190,11 +187,9 @@ impl Supervisor {
 
     /// The world as it is, without consuming the new encounters.
     fn snapshot_peek(&self) -> WorldSnapshot {
-        let mut robots: Vec<RobotView> = self.model.iter().map(|e| e.value().clone()).collect();
-        robots.sort_by_key(|r| r.id);
         WorldSnapshot {
             time: Instant::now() - self.started_at,
-            robots,
+            robots: self.model.views(),
             encounters: Vec::new(),
             arena: self.arena,
         }
@@ -232,17 +227,7 @@ impl Actor for Supervisor {
         for (id, robot) in &self.robots {
             robot.subscribe(ctx.address().recipient());
             robot.subscribe_events(ctx.address().recipient());
-            self.model.insert(
-                *id,
-                RobotView {
-                    id: *id,
-                    connected: false,
-                    pose: Default::default(),
-                    state: Default::default(),
-                    pending_moves: 0,
-                    on_track: None,
-                },
-            );
+            self.model.add(*id);
         }
         ctx.run_interval(self.snapshot_period, |_, ctx| ctx.notify(Tick));
     }
@@ -251,22 +236,7 @@ impl Actor for Supervisor {
 impl Handler<StateUpdated> for Supervisor {
     type Result = ();
     fn handle(&mut self, u: StateUpdated, _: &mut Context<Self>) {
-        let sensor = nalgebra::Point2::new(
-            u.pose.x + 0.016 * u.pose.theta.cos(),
-            u.pose.y + 0.016 * u.pose.theta.sin(),
-        );
-        let on_track = self
-            .track
-            .nearest(sensor)
-            .filter(|n| n.distance_m < 0.02)
-            .map(|n| (n.edge, n.offset_m, n.distance_m));
-        if let Some(mut view) = self.model.get_mut(&u.robot_id) {
-            view.connected = true;
-            view.pose = u.pose;
-            view.state = u.state;
-            view.pending_moves = usize::from(u.state.locomotion.queue_len);
-            view.on_track = on_track;
-        }
+        self.model.apply(&u);
     }
 }
 
@@ -287,9 +257,7 @@ impl Handler<RobotEvent> for Supervisor {
                 self.encounters_new.push(encounter);
             }
             RobotEventKind::LinkLost => {
-                if let Some(mut v) = self.model.get_mut(&e.robot_id) {
-                    v.connected = false;
-                }
+                self.model.lost(e.robot_id);
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
             }
             _ => {}
@@ -315,7 +283,7 @@ impl Handler<Tick> for Supervisor {
     fn handle(&mut self, _: Tick, ctx: &mut Context<Self>) {
         if !self.started {
             // Start once every robot has reported a state, so the behaviour sees real poses.
-            if self.model.iter().all(|v| v.connected) {
+            if self.model.all_connected() {
                 self.started = true;
                 self.started_at = Instant::now();
                 self.start_behaviour(ctx);
