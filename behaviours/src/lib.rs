@@ -10,5 +10,6 @@ pub use api::{
     Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Registry, RobotView,
     Verdict, WorldSnapshot,
 };
+pub use protocol::packets::MoveOutcome;
 pub use robot_actor::{MoveCommand, Pose, RobotEventKind};
 pub use simulator::world::graph::TrackGraph;

@@ -171,6 +171,7 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         }
     }
     let started = tokio::time::Instant::now();
+    let progress = progress_bar(plan.duration, started);
     let mut done_rx = done_rx;
     let aborted = tokio::select! {
         o = &mut done_rx => Some(o),
@@ -190,6 +191,10 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
     }
     .context("supervisor stopped without a verdict")?;
     let experiment_time = tokio::time::Instant::now() - started;
+    if let Some((bar, task)) = progress {
+        task.abort();
+        bar.finish_and_clear();
+    }
     // Let stop commands reach the robots before the ground truth is taken.
     tokio::time::sleep(Duration::from_millis(300)).await;
     let truth = match &sim {
@@ -267,4 +272,30 @@ async fn connect_all(
         robots.push((hello.robot_id, robot));
     }
     Ok(robots)
+}
+
+/// A progress bar over the time limit, on a terminal only; it moves with the experiment's clock.
+fn progress_bar(
+    limit: Duration,
+    started: tokio::time::Instant,
+) -> Option<(indicatif::ProgressBar, tokio::task::JoinHandle<()>)> {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return None;
+    }
+    let bar = indicatif::ProgressBar::new(limit.as_millis() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ms")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("experiment time");
+    let b = bar.clone();
+    let task = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        loop {
+            tick.tick().await;
+            b.set_position((tokio::time::Instant::now() - started).as_millis() as u64);
+        }
+    });
+    Some((bar, task))
 }
