@@ -16,3 +16,16 @@ pub mod world_model;
 
 pub use experiment::{load_world, run, LinkFault, Plan, Transport};
 pub use report::Report;
+
+/// An actix system on a current-thread tokio runtime, with its clock paused when `paused`: under a
+/// paused clock simulated time advances whenever every task waits, so a simulated experiment runs
+/// in lockstep, deterministically and as fast as the machine allows.
+pub fn actor_system(paused: bool) -> actix::SystemRunner {
+    actix::System::with_tokio_rt(move || {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(paused)
+            .build()
+            .expect("a current-thread tokio runtime builds")
+    })
+}

@@ -8,14 +8,7 @@ use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Verdict, WorldSna
 use coordinator::{LinkFault, Plan, Report, Transport};
 
 fn paused<F: std::future::Future>(f: F) -> F::Output {
-    let sys = actix::System::with_tokio_rt(|| {
-        tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .start_paused(true)
-            .build()
-            .expect("runtime")
-    });
-    sys.block_on(f)
+    coordinator::actor_system(true).block_on(f)
 }
 
 fn plan(behaviour: &str, robots: usize) -> Plan {

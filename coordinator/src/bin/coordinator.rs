@@ -145,16 +145,8 @@ fn main() -> ExitCode {
 fn run(args: &Args, registry: &Registry) -> Result<bool> {
     let plan = plan(args)?;
     let simulated = plan.transport == Transport::Sim;
-    // Simulated experiments run on a paused tokio clock: simulated time advances whenever every
-    // task waits, so the run is deterministic and as fast as the machine allows.
-    let paused = simulated && !plan.realtime;
-    let system = actix::System::with_tokio_rt(move || {
-        tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .start_paused(paused)
-            .build()
-            .expect("tokio runtime")
-    });
+    // Simulated experiments run on a paused clock: see `coordinator::actor_system`.
+    let system = coordinator::actor_system(simulated && !plan.realtime);
     let report = system.block_on(coordinator::run(plan, registry))?;
     println!("{report}");
     if let Some(path) = &args.json_report {

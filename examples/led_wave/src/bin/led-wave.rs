@@ -24,13 +24,7 @@ fn main() -> anyhow::Result<()> {
         params: Default::default(),
         faults: Vec::new(),
     };
-    let system = actix::System::with_tokio_rt(|| {
-        tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .start_paused(true)
-            .build()
-            .expect("tokio runtime")
-    });
+    let system = coordinator::actor_system(true);
     let report = system.block_on(coordinator::run(plan, &registry))?;
     println!("{report}");
     std::process::exit(if report.verdict.success { 0 } else { 1 });
