@@ -43,9 +43,8 @@ pub fn qemu_required() -> bool {
 }
 
 fn on_path(program: &str) -> bool {
-    std::env::var_os("PATH").is_some_and(|paths| {
-        std::env::split_paths(&paths).any(|dir| dir.join(program).is_file())
-    })
+    std::env::var_os("PATH")
+        .is_some_and(|paths| std::env::split_paths(&paths).any(|dir| dir.join(program).is_file()))
 }
 
 fn target_installed() -> bool {
@@ -74,9 +73,7 @@ pub fn missing_tools() -> Option<String> {
         ));
     }
     if !target_installed() {
-        missing.push(format!(
-            "the {TARGET} target (rustup target add {TARGET})"
-        ));
+        missing.push(format!("the {TARGET} target (rustup target add {TARGET})"));
     }
     (!missing.is_empty()).then(|| missing.join(" and "))
 }
@@ -160,7 +157,12 @@ pub fn image_size(elf: &[u8], ram_start: u32, ram_len: u32) -> Result<ImageSize,
     let mut size = ImageSize { flash: 0, ram: 0 };
     for i in 0..shnum {
         let h = shoff + i * shentsize;
-        let (kind, flags, addr, len) = (u32_at(h + 4)?, u32_at(h + 8)?, u32_at(h + 12)?, u32_at(h + 20)?);
+        let (kind, flags, addr, len) = (
+            u32_at(h + 4)?,
+            u32_at(h + 8)?,
+            u32_at(h + 12)?,
+            u32_at(h + 20)?,
+        );
         if flags & SHF_ALLOC == 0 {
             continue;
         }

@@ -7,12 +7,10 @@
 
 use std::time::{Duration, Instant};
 
-use pocketfleet_tests::{
-    build_firmware, image_size, skip_without_qemu, ImageSize, QemuRobot,
-};
+use pocketfleet_tests::{build_firmware, image_size, skip_without_qemu, ImageSize, QemuRobot};
 use protocol::packets::{
-    self, AnyPacket, MoveOutcome, ReflectorMode, SettingsRead, SettingsUpdate,
-    StraightMovement, WheelSpeeds,
+    self, AnyPacket, MoveOutcome, ReflectorMode, SettingsRead, SettingsUpdate, StraightMovement,
+    WheelSpeeds,
 };
 use protocol::settings::Settings;
 use protocol::state::RobotState;
@@ -164,7 +162,9 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
     .encode(&mut bad_checksum)
     .unwrap();
     bad_checksum[0] = bad_checksum[0].wrapping_add(1);
-    let mut garbage = vec![0xC0, 0x01, 0x02, 0xC0, 0xDB, 0x00, 0xC0, 0x00, 0xEE, 0x03, 0xC0];
+    let mut garbage = vec![
+        0xC0, 0x01, 0x02, 0xC0, 0xDB, 0x00, 0xC0, 0x00, 0xEE, 0x03, 0xC0,
+    ];
     garbage.extend(std::iter::repeat_n(0x55, 600));
     garbage.push(0xC0);
     garbage.extend(protocol::slip::encode_iter(&bad_checksum[..n]));
@@ -266,8 +266,7 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
             seq,
             host_time_us: 0,
         });
-        (s.wheels.left_pwm > 0 && s.wheels.right_pwm > 0 && s.wheels.left_mps > 0.05)
-            .then_some(())
+        (s.wheels.left_pwm > 0 && s.wheels.right_pwm > 0 && s.wheels.left_mps > 0.05).then_some(())
     })
     .unwrap();
     let last_seq = seq + 1_000;
@@ -293,7 +292,10 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
             None
         })
         .unwrap();
-    assert!(watchdog_event, "no watchdog-stop event before the motors stopped");
+    assert!(
+        watchdog_event,
+        "no watchdog-stop event before the motors stopped"
+    );
     let fed_ms = fed_us.unwrap() as f64 / 1000.0;
     let stop_ms = f64::from(stopped.uptime_ms) - fed_ms;
     let timeout_ms = f64::from(Settings::default().watchdog.timeout_ms);
@@ -314,7 +316,10 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
         .unwrap();
     assert_eq!({ at_rest.locomotion.mode }, packets::DriveMode::Idle as u8);
 
-    assert_eq!(link.bad_frames, 0, "the robot sent frames that do not decode");
+    assert_eq!(
+        link.bad_frames, 0,
+        "the robot sent frames that do not decode"
+    );
     assert!(robot.exit_status().is_none(), "QEMU ended during the test");
     eprintln!(
         "QEMU robot test: {:.1} s wall, {:.2} s robot time",
