@@ -72,7 +72,8 @@ unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
     let mut text = Text::new();
     let _ = write!(
         text,
-        "HardFault pc={:#010x} lr={:#010x} hfsr={:#010x} cfsr={:#010x}",
+        // Hex without prefixes, so all four fit in one log packet.
+        "HardFault pc={:08x} lr={:08x} hfsr={:08x} cfsr={:08x}",
         frame.pc(),
         frame.lr(),
         // SAFETY: HFSR and CFSR are read-only status registers of the SCB.
