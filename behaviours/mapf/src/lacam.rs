@@ -1,0 +1,342 @@
+//! LaCAM: Lazy Constraints Addition search for MAPF (Okumura, "LaCAM: Search-Based Algorithm for
+//! Quick Multi-Agent Pathfinding", AAAI 2023; "Improving LaCAM for Scalable Eventually Optimal
+//! Multi-Agent Pathfinding", IJCAI 2023, which names the complete variant LaCAM*).
+//!
+//! The high level is a depth-first search over joint configurations. Each high-level node owns
+//! a low-level *constraint tree*, explored breadth-first and built lazily: a low-level node fixes
+//! the next vertex of the first `d` agents in the node's priority order, and expanding it adds
+//! one child per choice (wait or any neighbour) for agent `d + 1`. Every time a high-level node
+//! is visited, one low-level node is taken and PIBT ([`crate::pibt`]) completes its constraints
+//! into a successor configuration. Usually the first, unconstrained, PIBT step is good and the
+//! search runs as fast as plain PIBT; when PIBT goes round in circles, revisited configurations
+//! send the search back and the growing constraints force the alternatives.
+//!
+//! Because a full-depth low-level node pins every agent, every valid successor of a
+//! configuration is eventually generated, and configurations are never expanded twice: the search
+//! is complete. It returns a plan if one exists and [`MapfError::Unsolvable`] once every
+//! reachable configuration has been exhausted; the exhaustive part is exponential, so real
+//! callers give a time or expansion budget ([`Options`]) and get [`MapfError::Timeout`] past it.
+//! The first solution found is returned; LaCAM*'s further anytime refinement towards optimal
+//! cost is not done.
+
+use std::collections::HashMap;
+use std::rc::Rc;
+use std::time::{Duration, Instant};
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::error::MapfError;
+use crate::graph::Graph;
+use crate::pibt::{check_vertices, initial_priorities, update_priorities, Pibt, NONE};
+use crate::plan::Plan;
+
+/// Search settings. The default has seed 0 and no budget.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Options {
+    /// Seeds the tie-breaking of PIBT and the order of low-level children: equal seeds give
+    /// equal plans.
+    pub seed: u64,
+    /// Wall-clock budget; past it the search stops with [`MapfError::Timeout`].
+    pub time_limit: Option<Duration>,
+    /// Budget of low-level expansions (configuration generator calls); past it the search stops
+    /// with [`MapfError::Timeout`]. Deterministic, unlike the time limit.
+    pub max_expansions: Option<u64>,
+}
+
+/// What a search did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SearchStats {
+    /// Low-level expansions, i.e. configuration generator (PIBT) calls.
+    pub expansions: u64,
+    /// Distinct configurations reached (high-level nodes).
+    pub configurations: usize,
+    /// Wall-clock time, including the distance tables computed for the goals.
+    pub elapsed: Duration,
+}
+
+/// Plans paths from `starts` to `goals` (one of each per agent, all distinct) on `graph`.
+pub fn solve(
+    graph: &Graph,
+    starts: &[u32],
+    goals: &[u32],
+    options: &Options,
+) -> Result<Plan, MapfError> {
+    solve_with_stats(graph, starts, goals, options).0
+}
+
+/// Like [`solve`], also reporting the effort spent whatever the outcome.
+pub fn solve_with_stats(
+    graph: &Graph,
+    starts: &[u32],
+    goals: &[u32],
+    options: &Options,
+) -> (Result<Plan, MapfError>, SearchStats) {
+    let began = Instant::now();
+    let mut stats = SearchStats::default();
+    let result = Search::new(graph, starts, goals, options, began)
+        .and_then(|search| search.run(&mut stats));
+    stats.elapsed = began.elapsed();
+    (result, stats)
+}
+
+struct HighNode {
+    config: Rc<[u32]>,
+    parent: u32,
+    priorities: Vec<f32>,
+    /// Agents by decreasing priority: the order of PIBT and of the constraint tree's levels.
+    order: Vec<u32>,
+    /// The constraint tree; nodes are appended as they are created, and since the tree is
+    /// explored breadth-first, `tree[head..]` is exactly the queue of nodes not yet used.
+    tree: Vec<LowNode>,
+    head: usize,
+}
+
+#[derive(Clone, Copy)]
+struct LowNode {
+    parent: u32,
+    agent: u32,
+    vertex: u32,
+    depth: u32,
+}
+
+const ROOT_CONSTRAINT: LowNode = LowNode {
+    parent: NONE,
+    agent: NONE,
+    vertex: NONE,
+    depth: 0,
+};
+
+impl HighNode {
+    fn new(config: Rc<[u32]>, parent: u32, priorities: Vec<f32>) -> Self {
+        let mut order: Vec<u32> = (0..config.len() as u32).collect();
+        // Stable, so equal priorities keep index order and runs are reproducible.
+        order.sort_by(|&a, &b| priorities[b as usize].total_cmp(&priorities[a as usize]));
+        Self {
+            config,
+            parent,
+            priorities,
+            order,
+            tree: vec![ROOT_CONSTRAINT],
+            head: 0,
+        }
+    }
+}
+
+struct Search<'g, 'a> {
+    graph: &'g Graph,
+    goals: &'a [u32],
+    options: &'a Options,
+    began: Instant,
+    pibt: Pibt<'g>,
+    rng: ChaCha8Rng,
+    nodes: Vec<HighNode>,
+    explored: HashMap<Rc<[u32]>, u32>,
+    open: Vec<u32>,
+}
+
+impl<'g, 'a> Search<'g, 'a> {
+    fn new(
+        graph: &'g Graph,
+        starts: &'a [u32],
+        goals: &'a [u32],
+        options: &'a Options,
+        began: Instant,
+    ) -> Result<Self, MapfError> {
+        if starts.len() != goals.len() {
+            return Err(MapfError::LengthMismatch {
+                starts: starts.len(),
+                goals: goals.len(),
+            });
+        }
+        check_vertices(graph, starts, |first, second, vertex| {
+            MapfError::DuplicateStart {
+                first,
+                second,
+                vertex,
+            }
+        })?;
+        let pibt = Pibt::new(graph, goals, options.seed)?;
+        // A goal in another component would make the search exhaust the whole configuration
+        // space before saying what a BFS table says at once.
+        if let Some(agent) = (0..starts.len()).find(|&i| graph.distance(starts[i], goals[i]).is_none())
+        {
+            return Err(MapfError::GoalUnreachable {
+                agent,
+                start: starts[agent],
+                goal: goals[agent],
+            });
+        }
+        let config: Rc<[u32]> = starts.into();
+        let root = HighNode::new(config.clone(), NONE, initial_priorities(graph, starts, goals));
+        Ok(Self {
+            graph,
+            goals,
+            options,
+            began,
+            pibt,
+            // A different stream from PIBT's, so that the two uses of the seed are independent.
+            rng: ChaCha8Rng::seed_from_u64(options.seed ^ 0x9e37_79b9_7f4a_7c15),
+            nodes: vec![root],
+            explored: HashMap::from([(config, 0)]),
+            open: vec![0],
+        })
+    }
+
+    fn run(mut self, stats: &mut SearchStats) -> Result<Plan, MapfError> {
+        let n = self.goals.len();
+        if *self.nodes[0].config == *self.goals {
+            return Ok(self.plan_to(0));
+        }
+        let mut constraints = Vec::new();
+        let mut next = Vec::with_capacity(n);
+        let mut children = Vec::new();
+        while let Some(&top) = self.open.last() {
+            stats.configurations = self.nodes.len();
+            self.check_budget(stats.expansions)?;
+            let node = &mut self.nodes[top as usize];
+            let Some(&low) = node.tree.get(node.head) else {
+                // Every constraint of this node has been tried: nothing more to learn from it.
+                self.open.pop();
+                node.priorities = Vec::new();
+                node.order = Vec::new();
+                node.tree = Vec::new();
+                node.head = 0;
+                continue;
+            };
+            let low_index = node.head as u32;
+            node.head += 1;
+            stats.expansions += 1;
+
+            if (low.depth as usize) < n {
+                let agent = node.order[low.depth as usize];
+                let v = node.config[agent as usize];
+                children.clear();
+                children.extend_from_slice(self.graph.neighbors(v));
+                children.push(v);
+                children.shuffle(&mut self.rng);
+                node.tree.extend(children.iter().map(|&vertex| LowNode {
+                    parent: low_index,
+                    agent,
+                    vertex,
+                    depth: low.depth + 1,
+                }));
+            }
+
+            constraints.clear();
+            let mut c = low;
+            while c.depth > 0 {
+                constraints.push((c.agent, c.vertex));
+                c = node.tree[c.parent as usize];
+            }
+            if !self
+                .pibt
+                .generate(&node.config, &node.order, &constraints, &mut next)
+            {
+                continue;
+            }
+            if let Some(&seen) = self.explored.get(next.as_slice()) {
+                // Revisiting sends the search back to that configuration, as in LaCAM: its
+                // remaining constraints are the way out of whatever loop led here.
+                self.open.push(seen);
+                continue;
+            }
+            let mut priorities = node.priorities.clone();
+            update_priorities(&mut priorities, &next, self.goals);
+            let config: Rc<[u32]> = next.as_slice().into();
+            let id = self.nodes.len() as u32;
+            self.nodes.push(HighNode::new(config.clone(), top, priorities));
+            self.explored.insert(config, id);
+            self.open.push(id);
+            if next == self.goals {
+                stats.configurations = self.nodes.len();
+                return Ok(self.plan_to(id));
+            }
+        }
+        Err(MapfError::Unsolvable {
+            configurations: self.nodes.len(),
+        })
+    }
+
+    fn check_budget(&self, expansions: u64) -> Result<(), MapfError> {
+        let out_of_expansions = self.options.max_expansions.is_some_and(|m| expansions >= m);
+        let elapsed = self.began.elapsed();
+        if out_of_expansions || self.options.time_limit.is_some_and(|t| elapsed >= t) {
+            return Err(MapfError::Timeout {
+                expansions,
+                elapsed,
+            });
+        }
+        Ok(())
+    }
+
+    fn plan_to(&self, mut id: u32) -> Plan {
+        let mut configs = Vec::new();
+        while id != NONE {
+            let node = &self.nodes[id as usize];
+            configs.push(node.config.to_vec());
+            id = node.parent;
+        }
+        configs.reverse();
+        Plan::from_configurations(&configs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::validate;
+
+    #[test]
+    fn trivial_instance_is_a_one_step_plan() {
+        let g = Graph::grid(3, 3, None).unwrap();
+        let plan = solve(&g, &[0, 4], &[0, 4], &Options::default()).unwrap();
+        assert_eq!(plan.paths, vec![vec![0], vec![4]]);
+        let empty = solve(&g, &[], &[], &Options::default()).unwrap();
+        assert_eq!(empty.num_agents(), 0);
+    }
+
+    #[test]
+    fn unreachable_goal_is_reported_at_once() {
+        let g = Graph::from_edges(4, [(0, 1), (2, 3)]).unwrap();
+        let err = solve(&g, &[0], &[3], &Options::default()).unwrap_err();
+        assert_eq!(
+            err,
+            MapfError::GoalUnreachable {
+                agent: 0,
+                start: 0,
+                goal: 3
+            }
+        );
+        assert!(err.is_unsolvable());
+    }
+
+    #[test]
+    fn expansion_budget_gives_timeout() {
+        // Two agents swapping on a path: unsolvable, so only the budget can stop it early.
+        let g = Graph::from_edges(4, [(0, 1), (1, 2), (2, 3)]).unwrap();
+        let options = Options {
+            max_expansions: Some(3),
+            ..Options::default()
+        };
+        let (result, stats) = solve_with_stats(&g, &[0, 3], &[3, 0], &options);
+        assert!(matches!(result, Err(MapfError::Timeout { expansions: 3, .. })));
+        assert_eq!(stats.expansions, 3);
+    }
+
+    #[test]
+    fn equal_seeds_give_equal_plans() {
+        let g = Graph::grid(6, 6, None).unwrap();
+        let starts: Vec<u32> = (0..12).collect();
+        let goals: Vec<u32> = (24..36).rev().collect();
+        let options = Options {
+            seed: 3,
+            ..Options::default()
+        };
+        let a = solve(&g, &starts, &goals, &options).unwrap();
+        let b = solve(&g, &starts, &goals, &options).unwrap();
+        assert_eq!(a, b);
+        assert_eq!(validate(&g, &a, &starts, &goals), Ok(()));
+    }
+}
