@@ -2,10 +2,12 @@
 //! ([`Intent`]), how it ends ([`Verdict`]), and how it is found by name ([`Registry`]).
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Duration;
 
 use protocol::RobotState;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
+use simulator::world::Track;
 
 /// What the supervisor knows about one robot.
 #[derive(Clone, Debug, PartialEq)]
@@ -14,8 +16,11 @@ pub struct RobotView {
     pub id: u16,
     /// Whether its link is up and it said hello.
     pub connected: bool,
-    /// Odometry pose in the world frame.
+    /// Best pose estimate in the world frame: odometry, corrected against the track geometry
+    /// whenever the line sensor sees tape that the model can match.
     pub pose: Pose,
+    /// Raw odometry pose in the world frame, as the robot's encoders alone give it.
+    pub odometry: Pose,
     /// Latest reflected state.
     pub state: RobotState,
     /// Moves the host is still waiting for.
@@ -186,7 +191,7 @@ pub trait Behaviour: Send + 'static {
 }
 
 /// Options every behaviour is built from.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default)]
 pub struct BehaviourConfig {
     /// Robot ids taking part.
     pub robots: Vec<u16>,
@@ -194,10 +199,27 @@ pub struct BehaviourConfig {
     pub seed: u64,
     /// Free-form parameters (`--param key=value`).
     pub params: BTreeMap<String, String>,
+    /// The tape layout of the world, as the world file describes it (empty on a bare floor).
+    pub track: Arc<Track>,
 }
 
-/// Builds a behaviour from its config.
-pub type Constructor = fn(&BehaviourConfig) -> Box<dyn Behaviour>;
+impl BehaviourConfig {
+    /// Parameter `key` parsed as `T`, or `default` when absent.
+    ///
+    /// # Errors
+    /// A present value that does not parse, naming the key and the value.
+    pub fn param<T: std::str::FromStr>(&self, key: &str, default: T) -> Result<T, String> {
+        match self.params.get(key) {
+            None => Ok(default),
+            Some(v) => v
+                .parse()
+                .map_err(|_| format!("parameter {key}={v:?} is not a valid value")),
+        }
+    }
+}
+
+/// Builds a behaviour from its config, or says which parameter is wrong.
+pub type Constructor = fn(&BehaviourConfig) -> Result<Box<dyn Behaviour>, String>;
 
 /// One registered behaviour.
 #[derive(Clone, Copy, Debug)]
@@ -229,7 +251,14 @@ impl Registry {
             "square_walk",
             "every robot walks a 0.1 m square (thesis A.1); success when each closes within 10 mm",
             "open",
-            |cfg| Box::new(crate::square_walk::SquareWalk::new(cfg)),
+            |cfg| Ok(Box::new(crate::square_walk::SquareWalk::new(cfg)?)),
+        );
+        r.register(
+            "line_follow",
+            "robots follow a closed track at their own speeds, keeping their distance; success \
+             when each has driven its laps",
+            "oval",
+            |cfg| Ok(Box::new(crate::line_follow::LineFollow::new(cfg)?)),
         );
         r
     }

@@ -3,7 +3,9 @@
 
 pub mod actor;
 pub mod api;
+pub mod line_follow;
 pub mod square_walk;
+pub mod track_loop;
 
 pub use actor::BehaviourActor;
 pub use api::{

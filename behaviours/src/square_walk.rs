@@ -43,16 +43,18 @@ fn wrap(a: f64) -> f64 {
 
 impl SquareWalk {
     /// Builds it; `--param side=0.15` changes the side length.
-    pub fn new(cfg: &BehaviourConfig) -> Self {
-        let side_m = cfg
-            .params
-            .get("side")
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(SIDE_M);
-        Self {
+    ///
+    /// # Errors
+    /// A side that is not a positive length.
+    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
+        let side_m: f32 = cfg.param("side", SIDE_M)?;
+        if !(side_m > 0.0 && side_m < 10.0) {
+            return Err(format!("parameter side={side_m}: expected 0 < side < 10 m"));
+        }
+        Ok(Self {
             side_m,
             walkers: BTreeMap::new(),
-        }
+        })
     }
 
     /// Corner `c` (1..=4; 4 is the start) and the heading after turning there.
@@ -239,6 +241,7 @@ mod tests {
                     id,
                     connected: true,
                     pose,
+                    odometry: Default::default(),
                     state: Default::default(),
                     pending_moves: pending,
                     on_track: None,
@@ -261,7 +264,7 @@ mod tests {
             y: 0.3,
             theta: 0.0,
         };
-        let mut b = SquareWalk::new(&BehaviourConfig::default());
+        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         let intents = b.start(&world(&[(1, start), (2, start)], 0));
         assert_eq!(intents.len(), 16);
         assert!(b.verdict().is_none());
@@ -278,7 +281,7 @@ mod tests {
         b.on_snapshot(&world(&[(1, end), (2, end)], 0));
         let v = b.verdict().unwrap();
         assert!(v.success, "{v:?}");
-        let mut far = SquareWalk::new(&BehaviourConfig::default());
+        let mut far = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         far.start(&world(&[(1, start)], 0));
         for _ in 0..8 {
             far.on_event(1, &DONE, &world(&[], 0));
@@ -289,7 +292,7 @@ mod tests {
 
     #[test]
     fn an_aborted_move_fails_the_walk() {
-        let mut b = SquareWalk::new(&BehaviourConfig::default());
+        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         b.start(&world(&[(1, Pose::default())], 0));
         let stopped = RobotEventKind::MoveFinished {
             id: 1,
@@ -306,7 +309,7 @@ mod tests {
             y: 0.3,
             theta: 0.0,
         };
-        let mut b = SquareWalk::new(&BehaviourConfig::default());
+        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         b.start(&world(&[(1, start)], 0));
         // First leg done (straight + turn), then the link drops 4 cm into the second straight.
         b.on_event(1, &DONE, &world(&[], 0));

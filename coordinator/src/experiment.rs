@@ -18,7 +18,7 @@ use simulator::world::{file, presets, World};
 use simulator::{SimConfig, Simulation};
 use tokio::sync::oneshot;
 
-use crate::report::{Report, RobotReport};
+use crate::report::{ObstacleReport, Report, RobotReport};
 use crate::safety::Safety;
 use crate::supervisor::{Abort, Supervisor};
 
@@ -103,6 +103,15 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         }
         world.robots.truncate(n);
     }
+    let track = Arc::new(world.track.clone());
+    // Parameters are checked before any robot is touched.
+    let probe = BehaviourConfig {
+        robots: world.robots.iter().map(|r| r.id).collect(),
+        seed: plan.seed,
+        params: plan.params.clone(),
+        track: Arc::clone(&track),
+    };
+    (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
     let wall = std::time::Instant::now();
     let (discovered, origins, sim) = match &plan.transport {
         Transport::Sim => {
@@ -146,19 +155,46 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         robots: ids,
         seed: plan.seed,
         params: plan.params.clone(),
+        track: Arc::clone(&track),
     };
     let (done_tx, done_rx) = oneshot::channel();
     let supervisor = Supervisor::new(
         robots.clone(),
-        Arc::new(world.track.clone()),
+        Arc::clone(&track),
         (world.arena.width_m, world.arena.height_m),
         entry.constructor,
         config,
         Duration::from_millis(100),
         Safety::default(),
         done_tx,
-    )
-    .start();
+    );
+    let model = supervisor.model();
+    let supervisor = supervisor.start();
+    if let Some(h) = sim.clone() {
+        let model = model.clone();
+        if tracing::enabled!(target: "coordinator::truth", tracing::Level::DEBUG) {
+            // Model against ground truth once a second, for studying the estimator.
+            tokio::spawn(async move {
+                loop {
+                    tokio::time::sleep(Duration::from_secs(1)).await;
+                    let Some(t) = h.truth().await else { break };
+                    for (id, p) in &t.robots {
+                        if let Some(v) = model.robots().get(id) {
+                            tracing::debug!(
+                                target: "coordinator::truth",
+                                robot = id,
+                                t = t.now.as_secs_f64(),
+                                truth = ?(p.x, p.y, p.theta),
+                                model = ?(v.pose.x, v.pose.y, v.pose.theta),
+                                odometry = ?(v.odometry.x, v.odometry.y, v.odometry.theta),
+                                line_um = { v.state.line.position_um },
+                            );
+                        }
+                    }
+                }
+            });
+        }
+    }
     if let Some(h) = &sim {
         for fault in plan.faults.iter().copied() {
             let h = h.clone();
@@ -207,9 +243,19 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         let truth_pose = truth
             .as_ref()
             .and_then(|t| t.robots.iter().find(|(r, _)| r == id).map(|(_, p)| *p));
+        let estimate = model.robots().get(id).map_or(snap.pose, |v| v.pose);
+        let off_tape_m = truth_pose.and_then(|p| {
+            let sensor = nalgebra::Point2::new(
+                p.x + SENSOR_AHEAD_M * p.theta.cos(),
+                p.y + SENSOR_AHEAD_M * p.theta.sin(),
+            );
+            world.track.nearest(sensor).map(|n| n.distance_m)
+        });
         per_robot.push(RobotReport {
             id: *id,
             odometry: snap.pose,
+            estimate,
+            off_tape_m,
             truth: truth_pose.map(|p| Pose {
                 x: p.x,
                 y: p.y,
@@ -229,6 +275,10 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         seed: plan.seed,
         verdict: outcome.verdict,
         robots: per_robot,
+        obstacles: truth
+            .as_ref()
+            .map(|t| obstacle_reports(&world, t))
+            .unwrap_or_default(),
         robot_collisions: truth.as_ref().map(|t| t.robot_collisions),
         wall_contacts: truth.as_ref().map(|t| t.wall_contacts),
         held_intents: outcome
@@ -241,6 +291,49 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         experiment_time,
         wall_time: wall.elapsed(),
     })
+}
+
+/// Where the line sensor sits ahead of the body centre (the simulated robot's).
+const SENSOR_AHEAD_M: f64 = 0.016;
+
+fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport> {
+    world
+        .obstacles
+        .iter()
+        .zip(&truth.obstacles)
+        .zip(&truth.obstacle_displacements_m)
+        .map(|((spec, pose), moved)| {
+            // The footprint's perimeter, sampled every 2 mm, against the tape's edges.
+            let (s, c) = pose.theta.sin_cos();
+            let (hw, hh) = (spec.width_m / 2.0, spec.height_m / 2.0);
+            let steps = ((spec.width_m + spec.height_m) / 0.002).ceil().max(4.0) as usize;
+            let mut clear = f64::INFINITY;
+            for k in 0..=steps {
+                let t = k as f64 / steps as f64;
+                for (lx, ly) in [
+                    (-hw + 2.0 * hw * t, -hh),
+                    (-hw + 2.0 * hw * t, hh),
+                    (-hw, -hh + 2.0 * hh * t),
+                    (hw, -hh + 2.0 * hh * t),
+                ] {
+                    let q =
+                        nalgebra::Point2::new(pose.x + c * lx - s * ly, pose.y + s * lx + c * ly);
+                    if let Some(n) = world.track.nearest(q) {
+                        let half_tape = world.track.edges()[n.edge].width_m / 2.0;
+                        clear = clear.min((n.distance_m - half_tape).max(0.0));
+                    }
+                    if world.track.floor_at(q).ir_reflectance < 0.9 {
+                        clear = 0.0;
+                    }
+                }
+            }
+            ObstacleReport {
+                pose: [pose.x, pose.y, pose.theta],
+                moved_m: *moved,
+                clear_of_tape_m: clear,
+            }
+        })
+        .collect()
 }
 
 async fn connect_all(

@@ -15,7 +15,7 @@ pub mod supervisor;
 pub mod world_model;
 
 pub use experiment::{load_world, run, LinkFault, Plan, Transport};
-pub use report::Report;
+pub use report::{ObstacleReport, Report, RobotReport};
 
 /// An actix system on a current-thread tokio runtime, with its clock paused when `paused`: under a
 /// paused clock simulated time advances whenever every task waits, so a simulated experiment runs

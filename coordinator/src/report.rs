@@ -16,8 +16,13 @@ pub struct RobotReport {
     pub id: u16,
     /// Final odometry pose.
     pub odometry: Pose,
+    /// Final pose estimate of the world model (odometry corrected against the track).
+    pub estimate: Pose,
     /// Final true pose (simulated robots only).
     pub truth: Option<Pose>,
+    /// True distance from the line sensor to the nearest tape centre line at the end, metres
+    /// (simulated robots on a world with a track only).
+    pub off_tape_m: Option<f64>,
     /// True distance driven, metres (simulated robots only).
     pub distance_m: Option<f64>,
     /// Link statistics.
@@ -31,11 +36,38 @@ impl RobotReport {
             .map(|t| (t.x - self.odometry.x).hypot(t.y - self.odometry.y))
     }
 
-    /// Odometry heading error against ground truth, degrees.
+    /// Odometry heading error against ground truth, degrees in (−180, 180].
     pub fn heading_error_deg(&self) -> Option<f64> {
         self.truth
-            .map(|t| (t.theta - self.odometry.theta).to_degrees())
+            .map(|t| wrap_deg((t.theta - self.odometry.theta).to_degrees()))
     }
+
+    /// World-model position error against ground truth, metres.
+    pub fn estimate_error_m(&self) -> Option<f64> {
+        self.truth
+            .map(|t| (t.x - self.estimate.x).hypot(t.y - self.estimate.y))
+    }
+
+    /// World-model heading error against ground truth, degrees in (−180, 180].
+    pub fn estimate_heading_error_deg(&self) -> Option<f64> {
+        self.truth
+            .map(|t| wrap_deg((t.theta - self.estimate.theta).to_degrees()))
+    }
+}
+
+fn wrap_deg(a: f64) -> f64 {
+    (a + 180.0).rem_euclid(360.0) - 180.0
+}
+
+/// One obstacle's part of the report (simulated worlds only).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ObstacleReport {
+    /// Final true pose: x, y (metres), heading (radians).
+    pub pose: [f64; 3],
+    /// How far it moved from its start, metres.
+    pub moved_m: f64,
+    /// Distance from its footprint to the nearest tape edge, metres (0 when it covers tape).
+    pub clear_of_tape_m: f64,
 }
 
 /// Everything an experiment produced.
@@ -51,6 +83,8 @@ pub struct Report {
     pub verdict: Verdict,
     /// Per-robot results.
     pub robots: Vec<RobotReport>,
+    /// Obstacles at the end (ground truth; simulated robots only).
+    pub obstacles: Vec<ObstacleReport>,
     /// Robot–robot contacts (ground truth; simulated robots only).
     pub robot_collisions: Option<usize>,
     /// Robot–wall contacts (ground truth; simulated robots only).
@@ -71,9 +105,13 @@ pub struct Report {
 struct JsonRobot {
     id: u16,
     odometry: [f64; 3],
+    estimate: [f64; 3],
     truth: Option<[f64; 3]>,
     odometry_error_mm: Option<f64>,
     heading_error_deg: Option<f64>,
+    estimate_error_mm: Option<f64>,
+    estimate_heading_error_deg: Option<f64>,
+    off_tape_mm: Option<f64>,
     distance_m: Option<f64>,
     packets_in: u64,
     packets_out: u64,
@@ -93,6 +131,7 @@ struct JsonReport<'a> {
     summary: &'a str,
     metrics: std::collections::BTreeMap<&'a str, f64>,
     robots: Vec<JsonRobot>,
+    obstacles: &'a [ObstacleReport],
     robot_collisions: Option<usize>,
     wall_contacts: Option<usize>,
     held_intents: &'a [String],
@@ -124,9 +163,13 @@ impl Report {
                 .map(|r| JsonRobot {
                     id: r.id,
                     odometry: pose(r.odometry),
+                    estimate: pose(r.estimate),
                     truth: r.truth.map(pose),
                     odometry_error_mm: r.odometry_error_m().map(|e| e * 1e3),
                     heading_error_deg: r.heading_error_deg(),
+                    estimate_error_mm: r.estimate_error_m().map(|e| e * 1e3),
+                    estimate_heading_error_deg: r.estimate_heading_error_deg(),
+                    off_tape_mm: r.off_tape_m.map(|e| e * 1e3),
                     distance_m: r.distance_m,
                     packets_in: r.link.packets_in,
                     packets_out: r.link.packets_out,
@@ -137,6 +180,7 @@ impl Report {
                     reconnects: r.link.reconnects,
                 })
                 .collect(),
+            obstacles: &self.obstacles,
             robot_collisions: self.robot_collisions,
             wall_contacts: self.wall_contacts,
             held_intents: &self.held_intents,
@@ -167,7 +211,7 @@ impl fmt::Display for Report {
         }
         writeln!(
             f,
-            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  driven [m]  rtt [ms]  in/out packets  losses"
+            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  driven [m]  rtt [ms]  in/out packets  losses"
         )?;
         for r in &self.robots {
             let truth = r.truth.map_or("        -        ".to_string(), |t| {
@@ -178,17 +222,29 @@ impl fmt::Display for Report {
             };
             writeln!(
                 f,
-                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {}  {}  {:>7}/{:<7} {:>6}",
+                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {} {}  {}  {}  {:>7}/{:<7} {:>6}",
                 r.id,
                 r.odometry.x * 1e3,
                 r.odometry.y * 1e3,
                 num(r.odometry_error_m().map(|e| e * 1e3), 10, 1),
                 num(r.heading_error_deg(), 17, 2),
+                num(r.estimate_error_m().map(|e| e * 1e3), 10, 1),
+                num(r.estimate_heading_error_deg(), 9, 2),
                 num(r.distance_m, 10, 3),
                 num(r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3), 8, 1),
                 r.link.packets_in,
                 r.link.packets_out,
                 r.link.losses,
+            )?;
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            writeln!(
+                f,
+                "  obstacle {i}: at {:.1},{:.1} mm, moved {:.1} mm, {:.1} mm clear of the tape",
+                o.pose[0] * 1e3,
+                o.pose[1] * 1e3,
+                o.moved_m * 1e3,
+                o.clear_of_tape_m * 1e3
             )?;
         }
         if let Some(c) = self.robot_collisions {

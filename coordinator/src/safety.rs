@@ -104,6 +104,7 @@ mod tests {
                     id,
                     connected: true,
                     pose: Pose { x, y, theta },
+                    odometry: Default::default(),
                     state: Default::default(),
                     pending_moves: 0,
                     on_track: None,

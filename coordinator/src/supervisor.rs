@@ -37,6 +37,8 @@ pub struct Outcome {
     pub encounters: Vec<Encounter>,
     /// Behaviour restarts after a panic.
     pub restarts: u32,
+    /// The world model's view of every robot at the end.
+    pub views: Vec<behaviours::RobotView>,
 }
 
 /// Ends the experiment now (Ctrl-C, time limit): every robot is stopped.
@@ -130,13 +132,26 @@ impl Supervisor {
                 held: std::mem::take(&mut self.held),
                 encounters: self.encounters.clone(),
                 restarts: self.restarts,
+                views: self.model.views(),
             });
         }
-        ctx.stop();
+        // The supervisor lives on, keeping the world model current while the robots brake and
+        // the report is taken, but runs the behaviour no more.
+        self.behaviour = None;
+        let _ = ctx;
     }
 
     fn start_behaviour(&mut self, ctx: &mut Context<Self>) {
-        let behaviour = BehaviourActor::new((self.constructor)(&self.config)).start();
+        if self.done.is_none() {
+            return;
+        }
+        let behaviour = match (self.constructor)(&self.config) {
+            Ok(b) => BehaviourActor::new(b).start(),
+            Err(why) => {
+                self.finish(Verdict::failure(format!("behaviour not built: {why}")), ctx);
+                return;
+            }
+        };
         self.behaviour = Some(behaviour.clone());
         let world = self.snapshot();
         let reply = behaviour.send(Start(world));
@@ -152,6 +167,10 @@ impl Supervisor {
         reply: Result<Result<Reply, Panicked>, MailboxError>,
         ctx: &mut Context<Self>,
     ) {
+        if self.done.is_none() {
+            // The experiment is over: late intents must not move a stopped robot.
+            return;
+        }
         match reply {
             Ok(Ok(reply)) => {
                 let world = self.snapshot_peek();
@@ -281,6 +300,9 @@ impl Handler<RobotEvent> for Supervisor {
 impl Handler<Tick> for Supervisor {
     type Result = ();
     fn handle(&mut self, _: Tick, ctx: &mut Context<Self>) {
+        if self.done.is_none() {
+            return;
+        }
         if !self.started {
             // Start once every robot has reported a state, so the behaviour sees real poses.
             if self.model.all_connected() {

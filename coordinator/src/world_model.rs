@@ -1,10 +1,13 @@
-//! The live world model: each robot's latest odometry pose, reflected state and place on the
-//! track, in a `DashMap` that the supervisor writes and a recorder or panel reads concurrently.
+//! The live world model: each robot's latest pose (odometry corrected against the track
+//! geometry), reflected state and place on the track, in a `DashMap` that the supervisor writes
+//! and a recorder or panel reads concurrently.
 
+use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use behaviours::RobotView;
+use behaviours::{Pose, RobotView};
 use dashmap::DashMap;
+use nalgebra::{Point2, Vector2};
 use robot_actor::StateUpdated;
 use simulator::world::Track;
 
@@ -12,20 +15,86 @@ use simulator::world::Track;
 const SENSOR_AHEAD_M: f64 = 0.016;
 /// A robot whose sensor is farther than this from any tape is not on the track.
 const ON_TRACK_M: f64 = 0.02;
+/// The tape the sensor sees is matched to the modelled tape only this close: farther, the pose
+/// estimate is too far off to know which tape it is.
+const MATCH_M: f64 = 0.012;
+/// Heading and tape must agree this well (either direction) before the tape corrects the heading:
+/// a robot turning in place sweeps its sensor across tape it is not following.
+const ALIGNED_RAD: f64 = 20.0 * PI / 180.0;
+/// Near a junction several tapes are under the sensor at once, so it corrects nothing there.
+const JUNCTION_CLEAR_M: f64 = 0.03;
+/// Share of the lateral error taken per state update (50 Hz: a time constant of about 0.1 s).
+const LATERAL_GAIN: f64 = 0.2;
+/// Share of the heading error taken per state update; lower than the lateral gain because the
+/// robot weaves about the tape while it follows it.
+const HEADING_GAIN: f64 = 0.05;
+/// `LineState::flags` bit: no spot sees the line.
+const LINE_LOST: u8 = 1;
+
+/// The rigid transform taking a robot's odometry pose to its corrected pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Correction {
+    dx: f64,
+    dy: f64,
+    dtheta: f64,
+}
+
+impl Correction {
+    fn apply(&self, p: Pose) -> Pose {
+        let (s, c) = self.dtheta.sin_cos();
+        Pose {
+            x: c * p.x - s * p.y + self.dx,
+            y: s * p.x + c * p.y + self.dy,
+            theta: p.theta + self.dtheta,
+        }
+    }
+
+    /// The correction that takes `odometry` to `corrected`.
+    fn between(odometry: Pose, corrected: Pose) -> Self {
+        let dtheta = corrected.theta - odometry.theta;
+        let (s, c) = dtheta.sin_cos();
+        Self {
+            dx: corrected.x - (c * odometry.x - s * odometry.y),
+            dy: corrected.y - (s * odometry.x + c * odometry.y),
+            dtheta,
+        }
+    }
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + PI).rem_euclid(TAU) - PI
+}
 
 /// The shared world model.
 #[derive(Clone)]
 pub struct WorldModel {
     robots: Arc<DashMap<u16, RobotView>>,
+    corrections: Arc<DashMap<u16, Correction>>,
     track: Arc<Track>,
+    /// Positions of nodes where three or more tapes meet.
+    junctions: Arc<Vec<Point2<f64>>>,
 }
 
 impl WorldModel {
     /// An empty model over `track`.
     pub fn new(track: Arc<Track>) -> Self {
+        let mut degree = vec![0usize; track.nodes().len()];
+        for e in track.edges() {
+            degree[e.from] += 1;
+            degree[e.to] += 1;
+        }
+        let junctions = track
+            .nodes()
+            .iter()
+            .zip(degree)
+            .filter(|(_, d)| *d >= 3)
+            .map(|(n, _)| n.position)
+            .collect();
         Self {
             robots: Arc::new(DashMap::new()),
+            corrections: Arc::new(DashMap::new()),
             track,
+            junctions: Arc::new(junctions),
         }
     }
 
@@ -42,6 +111,7 @@ impl WorldModel {
                 id,
                 connected: false,
                 pose: Default::default(),
+                odometry: Default::default(),
                 state: Default::default(),
                 pending_moves: 0,
                 on_track: None,
@@ -51,9 +121,21 @@ impl WorldModel {
 
     /// Takes one state update.
     pub fn apply(&self, u: &StateUpdated) {
-        let (s, c) = u.pose.theta.sin_cos();
-        let sensor =
-            nalgebra::Point2::new(u.pose.x + SENSOR_AHEAD_M * c, u.pose.y + SENSOR_AHEAD_M * s);
+        let mut correction = self
+            .corrections
+            .get(&u.robot_id)
+            .map(|c| *c)
+            .unwrap_or_default();
+        let mut pose = correction.apply(u.pose);
+        if u.state.line.flags & LINE_LOST == 0 {
+            if let Some(better) = self.match_tape(pose, u.state.line.position_um) {
+                pose = better;
+                correction = Correction::between(u.pose, pose);
+                self.corrections.insert(u.robot_id, correction);
+            }
+        }
+        let (s, c) = pose.theta.sin_cos();
+        let sensor = Point2::new(pose.x + SENSOR_AHEAD_M * c, pose.y + SENSOR_AHEAD_M * s);
         // Only robots over tape are looked up: most of the floor is white.
         let on_track = if self.track.floor_at(sensor).ir_reflectance < 0.9 {
             self.track
@@ -65,11 +147,63 @@ impl WorldModel {
         };
         if let Some(mut view) = self.robots.get_mut(&u.robot_id) {
             view.connected = true;
-            view.pose = u.pose;
+            view.pose = pose;
+            view.odometry = u.pose;
             view.state = u.state;
             view.pending_moves = usize::from(u.state.locomotion.queue_len);
             view.on_track = on_track;
         }
+    }
+
+    /// The pose moved part of the way towards agreeing with the tape the line sensor sees, or
+    /// `None` when the sighting cannot be matched to one tape unambiguously.
+    ///
+    /// The sensor measures where the tape is across the robot (`position_um`, positive to the
+    /// right); the track says where that tape is. Along the tape nothing is measured, so only the
+    /// lateral offset and the heading are corrected.
+    fn match_tape(&self, pose: Pose, position_um: i16) -> Option<Pose> {
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let right = Vector2::new(heading.y, -heading.x);
+        let centre = Point2::new(pose.x, pose.y);
+        let sensor = centre + heading * SENSOR_AHEAD_M;
+        let seen = sensor + right * (f64::from(position_um) * 1e-6);
+        let at_seen = self.track.nearest(seen)?;
+        if at_seen.distance_m > MATCH_M
+            || self
+                .junctions
+                .iter()
+                .any(|j| (j - at_seen.point).norm() < JUNCTION_CLEAR_M)
+        {
+            return None;
+        }
+        let along = at_seen.tangent.dot(&heading);
+        if along.abs() < ALIGNED_RAD.cos() {
+            return None;
+        }
+        let at_centre = self.track.nearest(centre)?;
+        // Only the mismatch across the tape is measured, so the pose moves along the tape's
+        // normal beside the robot's centre: any other direction (the normal under the sensor,
+        // which on a curve is turned by the sensor's lead; the robot's own lateral axis, turned
+        // by its heading error) has a component along the tape, and a steady bias in the
+        // readings would then walk the estimate along the track lap after lap.
+        let normal = Vector2::new(-at_centre.tangent.y, at_centre.tangent.x);
+        let lateral = normal * normal.dot(&(at_seen.point - seen));
+        // On a straight a follower weaves about the tape's direction, so that is its heading on
+        // average. On a curve its heading depends on how it cuts the curve, which is not known
+        // here; odometry carries the heading through the curve.
+        let straight = !self.track.edges()[at_centre.edge].is_arc()
+            && !self.track.edges()[at_seen.edge].is_arc();
+        let dtheta = if straight {
+            let tape_dir = at_centre.tangent * at_centre.tangent.dot(&heading).signum();
+            HEADING_GAIN * wrap(tape_dir.y.atan2(tape_dir.x) - pose.theta)
+        } else {
+            0.0
+        };
+        Some(Pose {
+            x: pose.x + LATERAL_GAIN * lateral.x,
+            y: pose.y + LATERAL_GAIN * lateral.y,
+            theta: pose.theta + dtheta,
+        })
     }
 
     /// Marks a robot's link as down.
@@ -89,5 +223,91 @@ impl WorldModel {
     /// Whether every robot has reported.
     pub fn all_connected(&self) -> bool {
         self.robots.iter().all(|v| v.connected)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use simulator::world::presets;
+
+    /// A simulated unicycle following the oval's tape (it steers its sensor onto the tape ahead,
+    /// weaving a little), its odometry drifting in heading by 2° per metre: the model keeps its
+    /// pose on the truth, the odometry does not.
+    #[test]
+    fn line_sightings_pull_a_drifting_odometry_back_onto_the_tape() {
+        let world = presets::preset("oval").unwrap();
+        let track = Arc::new(world.track.clone());
+        let model = WorldModel::new(Arc::clone(&track));
+        model.add(1);
+        let (v, dt) = (0.15, 0.02);
+        let mut truth = Pose {
+            x: 0.35,
+            y: 0.15,
+            theta: 0.0,
+        };
+        let mut odo = truth;
+        let (mut worst_lateral, mut worst_heading) = (0.0f64, 0.0f64);
+        for k in 0..4000 {
+            let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
+            let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+            let near = track.nearest(sensor).unwrap();
+            // Pure pursuit of a tape point 20 mm ahead of the sensor, plus a slow weave.
+            let target = near.point + near.tangent * 0.02;
+            let want = (target.y - truth.y).atan2(target.x - truth.x);
+            let omega = 8.0 * wrap(want - truth.theta) + 0.3 * (k as f64 * 0.05).sin();
+            let dth = omega * dt;
+            let ds = v * dt;
+            let mid = truth.theta + dth / 2.0;
+            truth = Pose {
+                x: truth.x + ds * mid.cos(),
+                y: truth.y + ds * mid.sin(),
+                theta: truth.theta + dth,
+            };
+            let dth_odo = dth + ds * 2f64.to_radians();
+            let mid = odo.theta + dth_odo / 2.0;
+            odo = Pose {
+                x: odo.x + ds * mid.cos(),
+                y: odo.y + ds * mid.sin(),
+                theta: odo.theta + dth_odo,
+            };
+            let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
+            let right = Vector2::new(heading.y, -heading.x);
+            let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+            let near = track.nearest(sensor).unwrap();
+            let mut state = protocol::RobotState::default();
+            state.line.position_um = ((near.point - sensor).dot(&right) * 1e6) as i16;
+            model.apply(&StateUpdated {
+                robot_id: 1,
+                at: tokio::time::Instant::now(),
+                state,
+                reduced: false,
+                pose: odo,
+            });
+            let est = model.views()[0].pose;
+            if k > 200 {
+                let lateral = right.dot(&Vector2::new(est.x - truth.x, est.y - truth.y));
+                worst_lateral = worst_lateral.max(lateral.abs());
+                worst_heading = worst_heading.max(wrap(est.theta - truth.theta).abs());
+            }
+        }
+        let v = model.views()[0].clone();
+        let odo_err = (v.odometry.x - truth.x).hypot(v.odometry.y - truth.y);
+        let est_err = (v.pose.x - truth.x).hypot(v.pose.y - truth.y);
+        let laps = 4000.0 * 0.003 / TrackLoopLen::oval();
+        assert!(laps > 5.0, "{laps}");
+        assert!(odo_err > 0.05, "the drift is real: {odo_err}");
+        assert!(worst_lateral < 0.002, "lateral {worst_lateral}");
+        assert!(worst_heading < 3f64.to_radians(), "heading {worst_heading}");
+        // Along the tape nothing is measured, but the heading held on the tape keeps the error
+        // along it to what the odometry's distance alone gets wrong.
+        assert!(est_err < 0.005, "estimate {est_err} vs odometry {odo_err}");
+    }
+
+    struct TrackLoopLen;
+    impl TrackLoopLen {
+        fn oval() -> f64 {
+            1.0 + 0.3 * PI
+        }
     }
 }

@@ -91,10 +91,10 @@ impl Behaviour for Fragile {
 fn a_panicking_behaviour_is_restarted_after_every_robot_stopped() {
     let mut registry = Registry::builtin();
     registry.register("fragile", "panics once", "open", |cfg: &BehaviourConfig| {
-        Box::new(Fragile {
-            inner: behaviours::square_walk::SquareWalk::new(cfg),
+        Ok(Box::new(Fragile {
+            inner: behaviours::square_walk::SquareWalk::new(cfg)?,
             snapshots: 0,
-        })
+        }))
     });
     let report = run(plan("fragile", 2), &registry);
     assert_eq!(report.restarts, 1, "{report}");

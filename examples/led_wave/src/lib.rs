@@ -141,6 +141,7 @@ mod tests {
                         y: 0.0,
                         theta: turned,
                     },
+                    odometry: Default::default(),
                     state: Default::default(),
                     pending_moves: 0,
                     on_track: None,

@@ -11,7 +11,7 @@ fn main() -> anyhow::Result<()> {
         "led_wave",
         "robots light up and spin in turn",
         "open",
-        |cfg| Box::new(led_wave::LedWave::new(cfg)),
+        |cfg| Ok(Box::new(led_wave::LedWave::new(cfg))),
     );
     let plan = Plan {
         behaviour: "led_wave".into(),

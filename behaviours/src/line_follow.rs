@@ -1,0 +1,327 @@
+//! `line_follow`: every robot follows a closed track at its own speed and keeps its distance to
+//! the robot ahead, slowing down and stopping behind it, until each has driven its laps.
+//!
+//! The robots' firmware does the following; the host only sets speeds. The gap to the robot ahead
+//! is the along-track distance from the world model (both robots on the tape), the straight-line
+//! distance to a robot in front that is off the tape, and the range of the robot ahead's IR frames
+//! as the front receiver reports them, whichever is least.
+
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
+use std::time::Duration;
+
+use robot_actor::RobotEventKind;
+
+use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::track_loop::TrackLoop;
+
+/// Body length: the along-track gap between two robots' sensors minus this is the free space.
+const BODY_M: f64 = 0.048;
+/// A robot ahead closer than this (sensor to sensor) stops the follower.
+const STOP_GAP_M: f64 = 0.09;
+/// Slowest commanded speed: below it the wheels' dead band makes following erratic.
+const MIN_SPEED_MPS: f64 = 0.04;
+/// An IR sighting counts this long.
+const IR_FRESH: Duration = Duration::from_millis(400);
+/// A robot off the tape counts as ahead within this half-angle of the heading.
+const AHEAD_CONE_RAD: f64 = 40.0 * PI / 180.0;
+
+#[derive(Clone, Debug, Default)]
+struct Follower {
+    /// Speed when the way is clear, m/s.
+    cruise: f64,
+    /// Speed last sent (0 = stopped).
+    sent: f64,
+    /// Loop coordinate at the last snapshot.
+    last_s: Option<f64>,
+    /// Metres driven along the loop.
+    progress_m: f64,
+    /// Latest front IR sighting of another robot: (when, range).
+    ir: Option<(Duration, f64)>,
+    line_losses: u32,
+    finished: bool,
+}
+
+/// The line-following behaviour.
+#[derive(Clone, Debug)]
+pub struct LineFollow {
+    track: TrackLoop,
+    laps: f64,
+    spacing_m: f64,
+    followers: BTreeMap<u16, Follower>,
+    min_gap_m: f64,
+    verdict: Option<Verdict>,
+}
+
+impl LineFollow {
+    /// Builds it. Parameters: `speed` (m/s, default 0.15), `laps` (default 3), `spacing` (m
+    /// between sensors at which a follower starts slowing, default 0.18), `spread` (share by which
+    /// each later robot is slower than the first, default 0.25, so that faster robots catch up).
+    ///
+    /// # Errors
+    /// A track that is not one closed loop, or a parameter out of range.
+    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
+        let track = TrackLoop::new(&cfg.track)?;
+        let speed: f64 = cfg.param("speed", 0.15)?;
+        let laps: f64 = cfg.param("laps", 3.0)?;
+        let spacing_m: f64 = cfg.param("spacing", 0.18)?;
+        let spread: f64 = cfg.param("spread", 0.25)?;
+        if !(MIN_SPEED_MPS..=0.5).contains(&speed) {
+            return Err(format!(
+                "speed={speed}: expected {MIN_SPEED_MPS} to 0.5 m/s"
+            ));
+        }
+        if !(laps > 0.0 && laps <= 100.0) {
+            return Err(format!("laps={laps}: expected 0 < laps <= 100"));
+        }
+        if !(spacing_m > STOP_GAP_M + 0.01 && spacing_m < 1.0) {
+            return Err(format!(
+                "spacing={spacing_m}: expected {} to 1 m",
+                STOP_GAP_M + 0.01
+            ));
+        }
+        if !(0.0..0.8).contains(&spread) {
+            return Err(format!("spread={spread}: expected 0 to 0.8"));
+        }
+        let n = cfg.robots.len().max(2) - 1;
+        let followers = cfg
+            .robots
+            .iter()
+            .enumerate()
+            .map(|(k, &id)| {
+                let cruise = (speed * (1.0 - spread * k as f64 / n as f64)).max(MIN_SPEED_MPS);
+                (
+                    id,
+                    Follower {
+                        cruise,
+                        ..Default::default()
+                    },
+                )
+            })
+            .collect();
+        Ok(Self {
+            track,
+            laps,
+            spacing_m,
+            followers,
+            min_gap_m: f64::INFINITY,
+            verdict: None,
+        })
+    }
+
+    /// Free distance ahead of robot `id`, sensor to sensor, from the world model and IR.
+    fn gap_ahead(&self, id: u16, world: &WorldSnapshot) -> f64 {
+        let Some(me) = world.robot(id) else {
+            return f64::INFINITY;
+        };
+        let mine = me.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
+        let mut gap = f64::INFINITY;
+        for other in world.robots.iter().filter(|o| o.id != id) {
+            let theirs = other.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
+            let d = match (mine, theirs) {
+                (Some(a), Some(b)) => self.track.ahead(a, b),
+                _ => {
+                    let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
+                    let bearing = dy.atan2(dx) - me.pose.theta;
+                    if bearing.sin().atan2(bearing.cos()).abs() < AHEAD_CONE_RAD {
+                        dx.hypot(dy)
+                    } else {
+                        f64::INFINITY
+                    }
+                }
+            };
+            gap = gap.min(d);
+        }
+        if let Some((at, range)) = self.followers.get(&id).and_then(|f| f.ir) {
+            if world.time.saturating_sub(at) < IR_FRESH {
+                gap = gap.min(range + BODY_M);
+            }
+        }
+        gap
+    }
+
+    fn speed_for(&self, cruise: f64, gap: f64) -> f64 {
+        let share = ((gap - STOP_GAP_M) / (self.spacing_m - STOP_GAP_M)).clamp(0.0, 1.0);
+        let v = cruise * share;
+        if v < MIN_SPEED_MPS {
+            0.0
+        } else {
+            // Steps of 1 cm/s, so a slowly changing gap does not send a packet every snapshot.
+            (v * 100.0).round() / 100.0
+        }
+    }
+}
+
+impl Behaviour for LineFollow {
+    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.on_snapshot(world)
+    }
+
+    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        if self.verdict.is_some() {
+            return Vec::new();
+        }
+        let mut intents = Vec::new();
+        let ids: Vec<u16> = self.followers.keys().copied().collect();
+        for id in ids {
+            let gap = self.gap_ahead(id, world);
+            self.min_gap_m = self.min_gap_m.min(gap);
+            let Some(view) = world.robot(id) else {
+                continue;
+            };
+            let s = view.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
+            let length = self.track.length_m();
+            let laps = self.laps;
+            let target = {
+                let f = self.followers.get(&id).map(|f| (f.cruise, f.finished));
+                match f {
+                    Some((cruise, false)) => self.speed_for(cruise, gap),
+                    _ => 0.0,
+                }
+            };
+            let Some(f) = self.followers.get_mut(&id) else {
+                continue;
+            };
+            if let (Some(before), Some(after)) = (f.last_s, s) {
+                let d = (after - before).rem_euclid(length);
+                // Forward only: a follower never backs up, and a jump of more than half the
+                // loop is a mismatch, not progress.
+                if d < 0.5 * length {
+                    f.progress_m += d;
+                }
+            }
+            if s.is_some() {
+                f.last_s = s;
+            }
+            if f.progress_m >= laps * length {
+                f.finished = true;
+            }
+            let target = if f.finished { 0.0 } else { target };
+            if (target - f.sent).abs() >= 0.01 || (target == 0.0) != (f.sent == 0.0) {
+                f.sent = target;
+                intents.push(Intent::FollowLine {
+                    robot: id,
+                    speed: (target > 0.0).then_some(target as f32),
+                });
+            }
+        }
+        if self.followers.values().all(|f| f.finished) {
+            let fewest = self
+                .followers
+                .values()
+                .map(|f| f.progress_m / self.track.length_m())
+                .fold(f64::INFINITY, f64::min);
+            let losses: u32 = self.followers.values().map(|f| f.line_losses).sum();
+            self.verdict = Some(
+                Verdict::success(format!(
+                    "every robot drove {:.0} laps; closest approach {:.0} mm sensor to sensor",
+                    self.laps,
+                    self.min_gap_m * 1e3
+                ))
+                .with("laps_min", fewest)
+                .with("min_gap_m", self.min_gap_m)
+                .with("line_losses", f64::from(losses)),
+            );
+            for id in self.followers.keys() {
+                intents.push(Intent::Stop { robot: *id });
+            }
+        }
+        intents
+    }
+
+    fn on_event(
+        &mut self,
+        robot: u16,
+        event: &RobotEventKind,
+        world: &WorldSnapshot,
+    ) -> Vec<Intent> {
+        let Some(f) = self.followers.get_mut(&robot) else {
+            return Vec::new();
+        };
+        match event {
+            // Front receiver (side 0) only: a robot behind is not in the way.
+            RobotEventKind::Encounter(e) if e.side == 0 => {
+                f.ir = Some((world.time, f64::from(e.range_mm) * 1e-3));
+            }
+            RobotEventKind::Line(true) => f.line_losses += 1,
+            // A robot back from a link loss has stopped following; it is sent its speed again.
+            RobotEventKind::Connected(_) => f.sent = 0.0,
+            _ => {}
+        }
+        Vec::new()
+    }
+
+    fn verdict(&self) -> Option<Verdict> {
+        self.verdict.clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::api::RobotView;
+    use robot_actor::Pose;
+    use simulator::world::presets;
+    use std::sync::Arc;
+
+    fn cfg(robots: Vec<u16>) -> BehaviourConfig {
+        BehaviourConfig {
+            robots,
+            track: Arc::new(presets::preset("oval").unwrap().track),
+            ..Default::default()
+        }
+    }
+
+    fn at(id: u16, x: f64, y: f64, theta: f64, track: &simulator::world::Track) -> RobotView {
+        let n = track.nearest(nalgebra::Point2::new(x, y)).unwrap();
+        RobotView {
+            id,
+            connected: true,
+            pose: Pose { x, y, theta },
+            odometry: Pose { x, y, theta },
+            state: Default::default(),
+            pending_moves: 0,
+            on_track: Some((n.edge, n.offset_m, n.distance_m)),
+        }
+    }
+
+    #[test]
+    fn a_follower_slows_then_stops_behind_the_robot_ahead() {
+        let c = cfg(vec![1, 2]);
+        let track = Arc::clone(&c.track);
+        let mut b = LineFollow::new(&c).unwrap();
+        let snap = |x2: f64| WorldSnapshot {
+            time: Duration::ZERO,
+            robots: vec![at(1, 0.30, 0.15, 0.0, &track), at(2, x2, 0.15, 0.0, &track)],
+            encounters: vec![],
+            arena: (1.0, 0.6),
+        };
+        let far = b.start(&snap(0.70));
+        assert!(far.contains(&Intent::FollowLine {
+            robot: 1,
+            speed: Some(0.15)
+        }));
+        let near = b.on_snapshot(&snap(0.44));
+        let Some(Intent::FollowLine { speed: Some(v), .. }) = near.iter().find(|i| i.robot() == 1)
+        else {
+            panic!("robot 1 slows: {near:?}");
+        };
+        assert!(*v < 0.15 && *v > 0.0, "{v}");
+        let touching = b.on_snapshot(&snap(0.37));
+        assert!(touching.contains(&Intent::FollowLine {
+            robot: 1,
+            speed: None
+        }));
+    }
+
+    #[test]
+    fn a_track_with_forks_is_refused_and_bad_parameters_are_named() {
+        let mut c = cfg(vec![1]);
+        c.track = Arc::new(presets::preset("junction").unwrap().track);
+        assert!(LineFollow::new(&c).is_err());
+        let mut c = cfg(vec![1]);
+        c.params.insert("speed".into(), "fast".into());
+        let e = LineFollow::new(&c).unwrap_err();
+        assert!(e.contains("speed"), "{e}");
+    }
+}
