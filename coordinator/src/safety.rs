@@ -1,14 +1,21 @@
 //! The supervisor's predictive safety check: an intent that would drive a robot into another robot
-//! or out of the arena is held back. Poses are the world model's; the check looks along the
-//! straight path a move or a wheel-speed command would take.
+//! or out of the arena is held back. Robots are their oriented 48 × 32 mm footprints grown by a
+//! tunable margin; a move is swept from where the robot's queued moves will leave it, in steps of
+//! at most 5 mm and 5°, against every other robot where it stands and where its own queued moves
+//! will leave it.
 
-use behaviours::{Intent, MoveCommand, WorldSnapshot};
+use behaviours::{Intent, MoveCommand, Pose, WorldSnapshot};
 
 /// Tunables of the check.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Safety {
-    /// Robots are discs of this radius for the check, metres (a 48 × 32 mm body fits in 29 mm).
-    pub radius_m: f64,
+    /// Footprint length along the heading, metres.
+    pub length_m: f64,
+    /// Footprint width, metres.
+    pub width_m: f64,
+    /// Clearance each robot keeps around its footprint, metres (the safety radius): two robots
+    /// may come no closer than twice this.
+    pub margin_m: f64,
     /// How far ahead a wheel-speed command is extrapolated, seconds.
     pub horizon_s: f64,
 }
@@ -16,84 +23,203 @@ pub struct Safety {
 impl Default for Safety {
     fn default() -> Self {
         Self {
-            radius_m: 0.03,
+            length_m: 0.048,
+            width_m: 0.032,
+            margin_m: 0.0015,
             horizon_s: 0.5,
         }
     }
 }
 
+/// Largest step between checked poses along a path.
+const STEP_M: f64 = 0.005;
+const STEP_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
 impl Safety {
-    /// `Ok` when the intent is safe in `world`, else why not.
-    pub fn check(&self, intent: &Intent, world: &WorldSnapshot) -> Result<(), String> {
+    /// `Ok` when the intent is safe in `world`, else why not. `from` is where the robot's queued
+    /// moves will leave it (its pose when it has none); `others_planned` where other robots'
+    /// queued moves will leave them.
+    pub fn check_planned(
+        &self,
+        intent: &Intent,
+        world: &WorldSnapshot,
+        from: Option<Pose>,
+        others_planned: &[(u16, Pose)],
+    ) -> Result<(), String> {
         let Some(me) = world.robot(intent.robot()) else {
             return Err(format!("robot {} is not in the experiment", intent.robot()));
         };
-        let p = me.pose;
-        let (s, c) = p.theta.sin_cos();
-        let travel = match *intent {
-            Intent::Move {
-                command: MoveCommand::Straight { distance_m, .. },
-                ..
-            } => f64::from(distance_m),
-            Intent::Move {
-                command:
-                    MoveCommand::Arc {
-                        radius_m,
-                        angle_deg,
-                        ..
-                    },
-                ..
-            } => {
-                // The chord of the arc, as a straight-line stand-in.
-                2.0 * f64::from(radius_m) * (f64::from(angle_deg).to_radians() * 0.5).sin().abs()
-            }
+        let start = from.unwrap_or(me.pose);
+        let path = match *intent {
+            Intent::Move { command, .. } => sweep(start, command),
             Intent::WheelSpeeds { left, right, .. } => {
-                f64::from(left + right) * 0.5 * self.horizon_s
+                let (l, r) = (f64::from(left), f64::from(right));
+                let v = (l + r) / 2.0;
+                // Gauge of the wheels; the turn rate only shapes the extrapolated arc.
+                let w = (r - l) / 0.04;
+                let (d, a) = (v * self.horizon_s, w * self.horizon_s);
+                let n = ((d.abs() / STEP_M).max(a.abs() / STEP_RAD)).ceil().max(1.0) as usize;
+                (0..=n)
+                    .map(|k| {
+                        let t = k as f64 / n as f64;
+                        arc_pose(start, d * t, a * t)
+                    })
+                    .collect()
             }
             _ => return Ok(()),
         };
-        if travel == 0.0 {
-            return Ok(());
-        }
-        let end = (p.x + travel * c, p.y + travel * s);
-        let r = self.radius_m;
         let (w, h) = world.arena;
-        if end.0 < r || end.1 < r || end.0 > w - r || end.1 > h - r {
-            return Err(format!(
-                "robot {} would leave the arena at ({:.3}, {:.3})",
-                me.id, end.0, end.1
-            ));
+        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
+        for p in &path {
+            for c in mine(*p).corners() {
+                if c.0 < 0.0 || c.1 < 0.0 || c.0 > w || c.1 > h {
+                    return Err(format!(
+                        "robot {} would leave the arena at ({:.3}, {:.3})",
+                        me.id, p.x, p.y
+                    ));
+                }
+            }
         }
         for other in world.robots.iter().filter(|o| o.id != me.id) {
-            let d = segment_point_distance((p.x, p.y), end, (other.pose.x, other.pose.y));
-            if d < 2.0 * r {
-                return Err(format!(
-                    "robot {} would pass {:.0} mm from robot {}",
-                    me.id,
-                    d * 1e3,
-                    other.id
-                ));
+            let mut theirs = vec![other.pose];
+            theirs.extend(
+                others_planned
+                    .iter()
+                    .filter(|(id, _)| *id == other.id)
+                    .map(|(_, p)| *p),
+            );
+            for q in theirs {
+                let fq = Footprint::new(q, self.length_m, self.width_m, self.margin_m);
+                // A robot already overlapping another (pushed together, or a bad estimate) may
+                // still move apart: only paths that enter an overlap are refused.
+                let overlapping_now = mine(path[0]).overlaps(&fq);
+                if let Some(p) = path.iter().skip(1).find(|p| {
+                    let f = mine(**p);
+                    f.overlaps(&fq) && (!overlapping_now || f.depth(&fq) > mine(path[0]).depth(&fq))
+                }) {
+                    return Err(format!(
+                        "robot {} would touch robot {} at ({:.3}, {:.3})",
+                        me.id, other.id, p.x, p.y
+                    ));
+                }
             }
         }
         Ok(())
     }
+
+    /// `Ok` when the intent is safe from the robots' current poses.
+    pub fn check(&self, intent: &Intent, world: &WorldSnapshot) -> Result<(), String> {
+        self.check_planned(intent, world, None, &[])
+    }
 }
 
-fn segment_point_distance(a: (f64, f64), b: (f64, f64), p: (f64, f64)) -> f64 {
-    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
-    let len2 = dx * dx + dy * dy;
-    let t = if len2 > 0.0 {
-        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
+/// Where `command` ends when it starts at `p`.
+pub fn end_pose(p: Pose, command: MoveCommand) -> Pose {
+    sweep(p, command).last().copied().unwrap_or(p)
+}
+
+/// Poses along `command` from `p`, both ends included.
+fn sweep(p: Pose, command: MoveCommand) -> Vec<Pose> {
+    let (d, a) = match command {
+        MoveCommand::Straight { distance_m, .. } => (f64::from(distance_m), 0.0),
+        MoveCommand::Rotate { angle_deg, .. } => (0.0, f64::from(angle_deg).to_radians()),
+        MoveCommand::Arc {
+            radius_m,
+            angle_deg,
+            ..
+        } => {
+            let a = f64::from(angle_deg).to_radians();
+            (f64::from(radius_m).abs() * a.abs(), a)
+        }
     };
-    (a.0 + t * dx - p.0).hypot(a.1 + t * dy - p.1)
+    let n = ((d.abs() / STEP_M).max(a.abs() / STEP_RAD)).ceil().max(1.0) as usize;
+    (0..=n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            arc_pose(p, d * t, a * t)
+        })
+        .collect()
+}
+
+/// The pose after driving `d` metres while turning by `a` radians at a constant rate.
+fn arc_pose(p: Pose, d: f64, a: f64) -> Pose {
+    // The chord of a circular arc leaves along the mean heading; its length is d·sinc(a/2).
+    let chord = if a.abs() < 1e-9 {
+        d
+    } else {
+        d * (a / 2.0).sin() / (a / 2.0)
+    };
+    let mid = p.theta + a / 2.0;
+    Pose {
+        x: p.x + chord * mid.cos(),
+        y: p.y + chord * mid.sin(),
+        theta: p.theta + a,
+    }
+}
+
+/// An oriented rectangle.
+#[derive(Clone, Copy, Debug)]
+struct Footprint {
+    centre: (f64, f64),
+    axes: [(f64, f64); 2],
+    half: [f64; 2],
+}
+
+impl Footprint {
+    fn new(p: Pose, length: f64, width: f64, margin: f64) -> Self {
+        let (s, c) = p.theta.sin_cos();
+        Self {
+            centre: (p.x, p.y),
+            axes: [(c, s), (-s, c)],
+            half: [length / 2.0 + margin, width / 2.0 + margin],
+        }
+    }
+
+    fn corners(&self) -> [(f64, f64); 4] {
+        let [a, b] = self.axes;
+        let [ha, hb] = self.half;
+        let at = |u: f64, v: f64| {
+            (
+                self.centre.0 + a.0 * u + b.0 * v,
+                self.centre.1 + a.1 * u + b.1 * v,
+            )
+        };
+        [at(ha, hb), at(-ha, hb), at(-ha, -hb), at(ha, -hb)]
+    }
+
+    /// Smallest overlap of the two projections over the four separating axes (negative when
+    /// the rectangles are apart).
+    fn depth(&self, other: &Footprint) -> f64 {
+        let mut least = f64::INFINITY;
+        for axis in self.axes.iter().chain(other.axes.iter()) {
+            let (lo1, hi1) = self.project(*axis);
+            let (lo2, hi2) = other.project(*axis);
+            least = least.min(hi1.min(hi2) - lo1.max(lo2));
+        }
+        least
+    }
+
+    fn overlaps(&self, other: &Footprint) -> bool {
+        self.depth(other) > 0.0
+    }
+
+    fn project(&self, axis: (f64, f64)) -> (f64, f64) {
+        let c = self.centre.0 * axis.0 + self.centre.1 * axis.1;
+        let r: f64 = self
+            .axes
+            .iter()
+            .zip(self.half)
+            .map(|(a, h)| h * (a.0 * axis.0 + a.1 * axis.1).abs())
+            .sum();
+        (c - r, c + r)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use behaviours::{Pose, RobotView};
+    use behaviours::RobotView;
+    use std::f64::consts::FRAC_PI_2;
 
     fn world(robots: &[(u16, f64, f64, f64)]) -> WorldSnapshot {
         WorldSnapshot {
@@ -157,5 +283,87 @@ mod tests {
                 &w
             )
             .is_err());
+    }
+
+    #[test]
+    fn two_robots_side_by_side_may_push_together_but_not_turn_into_each_other() {
+        let s = Safety::default();
+        // Facing north, 36 mm apart centre to centre: 4 mm between their 32 mm wide bodies.
+        let w = world(&[(1, 0.482, 0.1, FRAC_PI_2), (2, 0.518, 0.1, FRAC_PI_2)]);
+        assert!(s.check(&straight(1, 0.1), &w).is_ok());
+        assert!(s.check(&straight(2, 0.1), &w).is_ok());
+        let turn = Intent::Move {
+            robot: 1,
+            command: MoveCommand::Rotate {
+                angle_deg: 90.0,
+                speed_mps: 0.1,
+            },
+        };
+        assert!(
+            s.check(&turn, &w).is_err(),
+            "its 48 mm length swings into robot 2"
+        );
+    }
+
+    #[test]
+    fn a_move_is_checked_from_where_the_queue_leaves_the_robot() {
+        let s = Safety::default();
+        let w = world(&[(1, 0.3, 0.5, 0.0), (2, 0.3, 0.62, 0.0)]);
+        let north = straight(1, 0.1);
+        assert!(s.check(&north, &w).is_ok(), "east is clear");
+        let turned = end_pose(
+            w.robots[0].pose,
+            MoveCommand::Rotate {
+                angle_deg: 90.0,
+                speed_mps: 0.1,
+            },
+        );
+        assert!((turned.theta - FRAC_PI_2).abs() < 1e-9);
+        assert!(
+            s.check_planned(&north, &w, Some(turned), &[]).is_err(),
+            "after the queued quarter turn it heads into robot 2"
+        );
+        // Robot 2 is about to leave: where its queue ends counts too.
+        let w = world(&[(1, 0.3, 0.5, 0.0), (2, 0.6, 0.8, 0.0)]);
+        let planned = [(
+            2,
+            Pose {
+                x: 0.42,
+                y: 0.5,
+                theta: 0.0,
+            },
+        )];
+        assert!(s
+            .check_planned(&straight(1, 0.1), &w, None, &planned)
+            .is_err());
+    }
+
+    #[test]
+    fn an_arc_is_swept_along_its_curve() {
+        let p = Pose {
+            x: 0.0,
+            y: 0.0,
+            theta: 0.0,
+        };
+        let quarter = MoveCommand::Arc {
+            radius_m: 0.1,
+            angle_deg: 90.0,
+            speed_mps: 0.1,
+        };
+        let e = end_pose(p, quarter);
+        assert!(
+            (e.x - 0.1).abs() < 1e-6 && (e.y - 0.1).abs() < 1e-6,
+            "{e:?}"
+        );
+        let right = MoveCommand::Arc {
+            radius_m: 0.1,
+            angle_deg: -90.0,
+            speed_mps: 0.1,
+        };
+        let e = end_pose(p, right);
+        assert!(
+            (e.x - 0.1).abs() < 1e-6 && (e.y + 0.1).abs() < 1e-6,
+            "{e:?}"
+        );
     }
 }

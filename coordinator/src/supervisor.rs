@@ -12,13 +12,13 @@ use behaviours::{
     BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, Verdict, WorldSnapshot,
 };
 use robot_actor::actor::{Command, Enqueue};
-use robot_actor::{Robot, RobotEvent, RobotEventKind, StateUpdated};
+use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateUpdated};
 use simulator::world::Track;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tracing::{info, warn};
 
-use crate::safety::Safety;
+use crate::safety::{self, Safety};
 use crate::world_model::WorldModel;
 
 /// Behaviour restarts allowed before the experiment fails.
@@ -67,7 +67,13 @@ pub struct Supervisor {
     restarts: u32,
     done: Option<oneshot::Sender<Outcome>>,
     started: bool,
+    /// Where each robot's queued moves will leave it, and when the last one was sent.
+    planned: std::collections::HashMap<u16, (Pose, Instant)>,
 }
+
+/// A robot whose queue the robot reports empty this long after the last move was sent has done
+/// them all (the report of the newest move has certainly arrived by then).
+const PLAN_SETTLE: Duration = Duration::from_millis(300);
 
 impl Supervisor {
     /// A supervisor over connected robots, running the behaviour built by `constructor`.
@@ -98,6 +104,7 @@ impl Supervisor {
             restarts: 0,
             done: Some(done),
             started: false,
+            planned: Default::default(),
         }
     }
 
@@ -117,7 +124,8 @@ impl Supervisor {
         self.robots.iter().find(|(i, _)| *i == id).map(|(_, r)| r)
     }
 
-    fn stop_all(&self) {
+    fn stop_all(&mut self) {
+        self.planned.clear();
         for (_, r) in &self.robots {
             r.addr().do_send(Command::Stop);
         }
@@ -215,10 +223,31 @@ impl Supervisor {
     }
 
     fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) {
-        if let Err(reason) = self.safety.check(&intent, world) {
+        let id = intent.robot();
+        let from = self.planned.get(&id).map(|(p, _)| *p);
+        let others: Vec<(u16, Pose)> = self
+            .planned
+            .iter()
+            .filter(|(other, _)| **other != id)
+            .map(|(other, (p, _))| (*other, *p))
+            .collect();
+        if let Err(reason) = self.safety.check_planned(&intent, world, from, &others) {
             warn!(?intent, reason, "intent held back");
             self.held.push((world.time, intent, reason));
             return;
+        }
+        match intent {
+            Intent::Move { command, .. } => {
+                let start = from
+                    .or_else(|| world.robot(id).map(|r| r.pose))
+                    .unwrap_or_default();
+                self.planned
+                    .insert(id, (safety::end_pose(start, command), Instant::now()));
+            }
+            Intent::Led { .. } | Intent::IrMessage { .. } => {}
+            _ => {
+                self.planned.remove(&id);
+            }
         }
         let Some(robot) = self.robot(intent.robot()) else {
             return;
@@ -312,6 +341,11 @@ impl Handler<Tick> for Supervisor {
             }
             return;
         }
+        let now = Instant::now();
+        let model = &self.model;
+        self.planned.retain(|id, (_, sent)| {
+            now - *sent < PLAN_SETTLE || model.robots().get(id).is_some_and(|v| v.pending_moves > 0)
+        });
         if let Some(b) = self.behaviour.clone() {
             let world = self.snapshot();
             let reply = b.send(Snapshot(world));
