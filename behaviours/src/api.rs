@@ -254,6 +254,17 @@ impl Registry {
             |cfg| Ok(Box::new(crate::square_walk::SquareWalk::new(cfg)?)),
         );
         r.register(
+            "cooperative_push",
+            "two robots find a box too heavy for one on the track and push it off together \
+             (thesis A.2); success when it is clear and both lap again",
+            "push",
+            |cfg| {
+                Ok(Box::new(crate::cooperative_push::CooperativePush::new(
+                    cfg,
+                )?))
+            },
+        );
+        r.register(
             "line_follow",
             "robots follow a closed track at their own speeds, keeping their distance; success \
              when each has driven its laps",

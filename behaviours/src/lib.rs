@@ -3,7 +3,9 @@
 
 pub mod actor;
 pub mod api;
+pub mod cooperative_push;
 pub mod line_follow;
+pub mod moves;
 pub mod square_walk;
 pub mod track_loop;
 

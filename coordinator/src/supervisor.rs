@@ -182,8 +182,19 @@ impl Supervisor {
         match reply {
             Ok(Ok(reply)) => {
                 let world = self.snapshot_peek();
+                // Once a robot's move is held, its later moves in the same reply are held too:
+                // they were planned from where the held one would have left it.
+                let mut held_robots: Vec<u16> = Vec::new();
                 for intent in reply.intents {
-                    self.carry_out(intent, &world);
+                    let id = intent.robot();
+                    if held_robots.contains(&id) && matches!(intent, Intent::Move { .. }) {
+                        self.held
+                            .push((world.time, intent, "follows a held move".into()));
+                        continue;
+                    }
+                    if !self.carry_out(intent, &world) {
+                        held_robots.push(id);
+                    }
                 }
                 if let Some(verdict) = reply.verdict {
                     self.finish(verdict, ctx);
@@ -222,7 +233,8 @@ impl Supervisor {
         }
     }
 
-    fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) {
+    /// Checks and sends one intent; `false` when the safety check held it back.
+    fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
         let id = intent.robot();
         let from = self.planned.get(&id).map(|(p, _)| *p);
         let others: Vec<(u16, Pose)> = self
@@ -234,7 +246,7 @@ impl Supervisor {
         if let Err(reason) = self.safety.check_planned(&intent, world, from, &others) {
             warn!(?intent, reason, "intent held back");
             self.held.push((world.time, intent, reason));
-            return;
+            return false;
         }
         match intent {
             Intent::Move { command, .. } => {
@@ -250,7 +262,7 @@ impl Supervisor {
             }
         }
         let Some(robot) = self.robot(intent.robot()) else {
-            return;
+            return true;
         };
         let addr = robot.addr();
         match intent {
@@ -264,6 +276,7 @@ impl Supervisor {
             Intent::Led { rgb, .. } => addr.do_send(Command::Led(rgb[0], rgb[1], rgb[2])),
             Intent::IrMessage { message, .. } => addr.do_send(Command::IrMessage(message)),
         }
+        true
     }
 }
 
