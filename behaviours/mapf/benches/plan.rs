@@ -57,7 +57,9 @@ fn bench(c: &mut Criterion) {
 
 /// One timed run per size, printed as a table so the figures can be quoted as ratios.
 fn print_figures() {
-    println!("agents  lacam_cold  lacam_warm  pibt_step  warm/step  configs  expansions  makespan  soc");
+    println!(
+        "agents  lacam_cold  lacam_warm  pibt_step  warm/step  configs  expansions  makespan  soc"
+    );
     for agents in AGENTS {
         let s = scenario(agents);
         let options = lacam::Options {

@@ -155,7 +155,11 @@ impl Adg {
         }
 
         let adg = Self {
-            starts: plan.paths.iter().filter_map(|p| p.first().copied()).collect(),
+            starts: plan
+                .paths
+                .iter()
+                .filter_map(|p| p.first().copied())
+                .collect(),
             remaining: actions.iter().map(Vec::len).sum(),
             completed: vec![0; actions.len()],
             actions,
@@ -264,7 +268,10 @@ mod tests {
         );
         assert_eq!(adg.dependency(1, 0), Some((0, 0)));
         assert_eq!(adg.ready(1), None);
-        assert_eq!(adg.complete(1, 0), Err(AdgError::NotReady { agent: 1, index: 0 }));
+        assert_eq!(
+            adg.complete(1, 0),
+            Err(AdgError::NotReady { agent: 1, index: 0 })
+        );
         assert_eq!(adg.ready(0).map(|a| a.to), Some(2));
         adg.complete(0, 0).unwrap();
         assert_eq!(adg.ready(0), None);

@@ -24,7 +24,7 @@ use std::rc::Rc;
 use std::time::{Duration, Instant};
 
 use rand::seq::SliceRandom;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::MapfError;
@@ -75,11 +75,14 @@ pub fn solve_with_stats(
 ) -> (Result<Plan, MapfError>, SearchStats) {
     let began = Instant::now();
     let mut stats = SearchStats::default();
-    let result = Search::new(graph, starts, goals, options, began)
-        .and_then(|search| search.run(&mut stats));
+    let result =
+        Search::new(graph, starts, goals, options, began).and_then(|search| search.run(&mut stats));
     stats.elapsed = began.elapsed();
     (result, stats)
 }
+
+/// Chance of resuming the start instead of a revisited configuration.
+const RESTART_PROBABILITY: f64 = 0.01;
 
 struct HighNode {
     config: Rc<[u32]>,
@@ -160,7 +163,8 @@ impl<'g, 'a> Search<'g, 'a> {
         let pibt = Pibt::new(graph, goals, options.seed)?;
         // A goal in another component would make the search exhaust the whole configuration
         // space before saying what a BFS table says at once.
-        if let Some(agent) = (0..starts.len()).find(|&i| graph.distance(starts[i], goals[i]).is_none())
+        if let Some(agent) =
+            (0..starts.len()).find(|&i| graph.distance(starts[i], goals[i]).is_none())
         {
             return Err(MapfError::GoalUnreachable {
                 agent,
@@ -169,7 +173,11 @@ impl<'g, 'a> Search<'g, 'a> {
             });
         }
         let config: Rc<[u32]> = starts.into();
-        let root = HighNode::new(config.clone(), NONE, initial_priorities(graph, starts, goals));
+        let root = HighNode::new(
+            config.clone(),
+            NONE,
+            initial_priorities(graph, starts, goals),
+        );
         Ok(Self {
             graph,
             goals,
@@ -238,15 +246,24 @@ impl<'g, 'a> Search<'g, 'a> {
             }
             if let Some(&seen) = self.explored.get(next.as_slice()) {
                 // Revisiting sends the search back to that configuration, as in LaCAM: its
-                // remaining constraints are the way out of whatever loop led here.
-                self.open.push(seen);
+                // remaining constraints are the way out of whatever loop led here. Now and then
+                // the start is resumed instead (LaCAM3's random insertion): the depth-first
+                // search otherwise can sink a long time into one bad region, and a restart cuts
+                // that heavy tail. Completeness is unaffected, since nothing is discarded.
+                let resume = if self.rng.gen_bool(RESTART_PROBABILITY) {
+                    0
+                } else {
+                    seen
+                };
+                self.open.push(resume);
                 continue;
             }
             let mut priorities = node.priorities.clone();
             update_priorities(&mut priorities, &next, self.goals);
             let config: Rc<[u32]> = next.as_slice().into();
             let id = self.nodes.len() as u32;
-            self.nodes.push(HighNode::new(config.clone(), top, priorities));
+            self.nodes
+                .push(HighNode::new(config.clone(), top, priorities));
             self.explored.insert(config, id);
             self.open.push(id);
             if next == self.goals {
@@ -321,7 +338,10 @@ mod tests {
             ..Options::default()
         };
         let (result, stats) = solve_with_stats(&g, &[0, 3], &[3, 0], &options);
-        assert!(matches!(result, Err(MapfError::Timeout { expansions: 3, .. })));
+        assert!(matches!(
+            result,
+            Err(MapfError::Timeout { expansions: 3, .. })
+        ));
         assert_eq!(stats.expansions, 3);
     }
 

@@ -127,9 +127,9 @@ impl<'g> Pibt<'g> {
         })?;
         let mut seen = vec![false; current.len()];
         let is_permutation = order.len() == current.len()
-            && order
-                .iter()
-                .all(|&a| (a as usize) < seen.len() && !std::mem::replace(&mut seen[a as usize], true));
+            && order.iter().all(|&a| {
+                (a as usize) < seen.len() && !std::mem::replace(&mut seen[a as usize], true)
+            });
         assert!(is_permutation, "order must be a permutation of the agents");
         let mut out = Vec::with_capacity(current.len());
         let planned = self.generate(current, order, &[], &mut out);
@@ -266,8 +266,7 @@ impl<'g> Pibt<'g> {
                     continue;
                 }
                 let k = self.occupied_now[u as usize];
-                if k != NONE && k != i && self.next[k as usize] != NONE && self.closes_cycle(k, i)
-                {
+                if k != NONE && k != i && self.next[k as usize] != NONE && self.closes_cycle(k, i) {
                     continue;
                 }
                 self.occupied_next[u as usize] = i;
@@ -393,7 +392,11 @@ mod tests {
         let mut pibt = Pibt::new(&g, &[3, 1], 7).unwrap();
         let next = pibt.step(&[0, 1], &[1.0, 0.0]).unwrap();
         assert_eq!(next[0], 1);
-        assert!(next[1] == 2 || next[1] == 4, "pushed agent went to {}", next[1]);
+        assert!(
+            next[1] == 2 || next[1] == 4,
+            "pushed agent went to {}",
+            next[1]
+        );
     }
 
     #[test]
@@ -409,7 +412,10 @@ mod tests {
         let goals = [1, 2, 0];
         for seed in 0..20 {
             let mut pibt = Pibt::new(&ring, &goals, seed).unwrap();
-            assert_eq!(pibt.step(&[0, 1, 2], &[2.0, 1.0, 0.0]).unwrap(), vec![0, 1, 2]);
+            assert_eq!(
+                pibt.step(&[0, 1, 2], &[2.0, 1.0, 0.0]).unwrap(),
+                vec![0, 1, 2]
+            );
         }
     }
 
@@ -419,8 +425,14 @@ mod tests {
         let goals: Vec<u32> = (0..16).map(|i| 63 - i * 2).collect();
         let current: Vec<u32> = (0..16).map(|i| i * 3).collect();
         let p = initial_priorities(&g, &current, &goals);
-        let a = Pibt::new(&g, &goals, 42).unwrap().step(&current, &p).unwrap();
-        let b = Pibt::new(&g, &goals, 42).unwrap().step(&current, &p).unwrap();
+        let a = Pibt::new(&g, &goals, 42)
+            .unwrap()
+            .step(&current, &p)
+            .unwrap();
+        let b = Pibt::new(&g, &goals, 42)
+            .unwrap()
+            .step(&current, &p)
+            .unwrap();
         assert_eq!(a, b);
     }
 

@@ -173,8 +173,7 @@ pub fn validate(graph: &Graph, plan: &Plan, starts: &[u32], goals: &[u32]) -> Re
                 found: path.len(),
             });
         }
-        if let Some((time, &vertex)) = path.iter().enumerate().find(|(_, &v)| !graph.contains(v))
-        {
+        if let Some((time, &vertex)) = path.iter().enumerate().find(|(_, &v)| !graph.contains(v)) {
             return Err(Conflict::NotAVertex {
                 agent,
                 time,
@@ -245,7 +244,12 @@ pub fn validate(graph: &Graph, plan: &Plan, starts: &[u32], goals: &[u32]) -> Re
 ///
 /// "Follows" is a partial function (each agent enters at most one vertex, and at most one agent
 /// is on it), so cycles are found by walking from every agent with three-colour marking.
-fn following_cycle(plan: &Plan, time: usize, occupant: &[usize], mark: &mut [u8]) -> Option<Conflict> {
+fn following_cycle(
+    plan: &Plan,
+    time: usize,
+    occupant: &[usize],
+    mark: &mut [u8],
+) -> Option<Conflict> {
     const NONE: usize = usize::MAX;
     let next = |a: usize| {
         let (from, to) = (plan.paths[a][time], plan.paths[a][time + 1]);
@@ -324,7 +328,11 @@ mod tests {
         ));
         assert!(matches!(
             validate(&g, &p(vec![vec![0, 1], vec![1, 1]]), &[0, 1], &[1, 1]),
-            Err(Conflict::Vertex { vertex: 1, time: 1, .. })
+            Err(Conflict::Vertex {
+                vertex: 1,
+                time: 1,
+                ..
+            })
         ));
         assert!(matches!(
             validate(&g, &p(vec![vec![0, 1], vec![1, 0]]), &[0, 1], &[1, 0]),
@@ -355,7 +363,10 @@ mod tests {
             paths: vec![vec![0, 1], vec![1, 2], vec![2, 0]],
         };
         match validate(&triangle, &plan, &[0, 1, 2], &[1, 2, 0]) {
-            Err(Conflict::Rotation { mut agents, time: 0 }) => {
+            Err(Conflict::Rotation {
+                mut agents,
+                time: 0,
+            }) => {
                 agents.sort_unstable();
                 assert_eq!(agents, vec![0, 1, 2]);
             }

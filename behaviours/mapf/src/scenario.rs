@@ -24,14 +24,25 @@ impl Scenario {
     ///
     /// # Panics
     /// If the largest region has fewer than `agents` cells.
-    pub fn random_grid(width: u32, height: u32, obstacle_ratio: f64, agents: usize, seed: u64) -> Self {
+    pub fn random_grid(
+        width: u32,
+        height: u32,
+        obstacle_ratio: f64,
+        agents: usize,
+        seed: u64,
+    ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let cells = (width * height) as usize;
         let blocked: Vec<bool> = (0..cells).map(|_| rng.gen_bool(obstacle_ratio)).collect();
-        let graph = Graph::grid(width, height, Some(&blocked)).expect("mask has one entry per cell");
+        let graph =
+            Graph::grid(width, height, Some(&blocked)).expect("mask has one entry per cell");
         // Cells cut off by obstacles would make instances unsolvable for a trivial reason.
         let region = largest_component(&graph);
-        assert!(region.len() >= agents, "{agents} agents do not fit {} free cells", region.len());
+        assert!(
+            region.len() >= agents,
+            "{agents} agents do not fit {} free cells",
+            region.len()
+        );
         let pick = |rng: &mut ChaCha8Rng| {
             let mut r = region.clone();
             r.shuffle(rng);
@@ -40,7 +51,11 @@ impl Scenario {
         };
         let starts = pick(&mut rng);
         let goals = pick(&mut rng);
-        Self { graph, starts, goals }
+        Self {
+            graph,
+            starts,
+            goals,
+        }
     }
 }
 
