@@ -43,8 +43,8 @@ pub enum AdgError {
     /// execution would deadlock.
     #[error("plan has cyclic dependencies (a rotation); it cannot be executed")]
     Cyclic,
-    /// Paths are not all of one length.
-    #[error("paths of the plan differ in length")]
+    /// Paths are empty or not all of one length.
+    #[error("paths of the plan are empty or differ in length")]
     RaggedPlan,
     /// `complete` named an action that is not the agent's next one or whose dependency is not
     /// complete yet.
@@ -89,19 +89,16 @@ impl Adg {
     /// Builds the ADG of `plan`; the plan should have passed [`crate::validate`].
     pub fn new(plan: &Plan) -> Result<Self, AdgError> {
         let len = plan.paths.first().map_or(0, Vec::len);
-        if plan.paths.iter().any(|p| p.len() != len) {
+        if plan.paths.iter().any(|p| p.len() != len) || (len == 0 && !plan.paths.is_empty()) {
             return Err(AdgError::RaggedPlan);
         }
         let mut actions = Vec::with_capacity(plan.paths.len());
         let mut visits = Vec::new();
         for (agent, path) in plan.paths.iter().enumerate() {
             let mut list: Vec<Action> = Vec::new();
-            let Some(&start) = path.first() else {
-                actions.push(list);
-                continue;
-            };
             let mut visit = Visit {
-                vertex: start,
+                // Non-empty: checked above.
+                vertex: path[0],
                 arrival: 0,
                 agent: agent as u32,
                 entry: None,
@@ -288,6 +285,19 @@ mod tests {
             paths: vec![vec![0, 1], vec![1, 2], vec![2, 0]],
         };
         assert_eq!(Adg::new(&plan).unwrap_err(), AdgError::Cyclic);
+    }
+
+    #[test]
+    fn empty_or_ragged_paths_are_rejected() {
+        let empty = Plan {
+            paths: vec![vec![]],
+        };
+        assert_eq!(Adg::new(&empty).unwrap_err(), AdgError::RaggedPlan);
+        let ragged = Plan {
+            paths: vec![vec![0, 1], vec![2]],
+        };
+        assert_eq!(Adg::new(&ragged).unwrap_err(), AdgError::RaggedPlan);
+        assert!(Adg::new(&Plan::default()).unwrap().is_done());
     }
 
     #[test]

@@ -16,6 +16,10 @@
 //! is complete. It returns a plan if one exists and [`MapfError::Unsolvable`] once every
 //! reachable configuration has been exhausted; the exhaustive part is exponential, so real
 //! callers give a time or expansion budget ([`Options`]) and get [`MapfError::Timeout`] past it.
+//! When a successor is a configuration seen before, the search goes back to that configuration,
+//! or with a small probability to the start (random insertion, as in the authors' later LaCAM
+//! implementation): depth-first search can otherwise spend long in one bad region.
+//!
 //! The first solution found is returned; LaCAM*'s further anytime refinement towards optimal
 //! cost is not done.
 
