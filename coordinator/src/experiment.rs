@@ -18,6 +18,8 @@ use simulator::world::{file, presets, World};
 use simulator::{SimConfig, Simulation};
 use tokio::sync::oneshot;
 
+use crate::instruments::{Hooks, Run};
+use crate::observer::{Instruments, Observer};
 use crate::report::{ObstacleReport, Report, RobotReport};
 use crate::safety::Safety;
 use crate::supervisor::{Abort, Supervisor};
@@ -29,6 +31,8 @@ pub enum Transport {
     Sim,
     /// Robots at the given addresses (`tcp://…`, `serial://…`, `bt://…`).
     Addresses(Vec<String>),
+    /// The robots of an MCAP recording, played back (see `coordinator replay`).
+    Replay(std::path::PathBuf),
 }
 
 /// What to run.
@@ -81,6 +85,13 @@ pub fn load_world(name: &str) -> Result<World> {
 
 /// Runs one experiment to its end and reports it.
 pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
+    Ok(run_with(plan, registry, Instruments::default())
+        .await?
+        .report)
+}
+
+/// Runs one experiment with a recorder, a control panel or trails, and reports it.
+pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments) -> Result<Run> {
     let entry = registry.get(&plan.behaviour).ok_or_else(|| {
         anyhow!(
             "unknown behaviour {:?}; known: {}",
@@ -113,6 +124,7 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
     };
     (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
     let wall = std::time::Instant::now();
+    let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
     let (discovered, origins, sim) = match &plan.transport {
         Transport::Sim => {
             let origins: Vec<Pose> = world
@@ -148,8 +160,25 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
             .await?;
             (found, None, None)
         }
+        Transport::Replay(_) => {
+            let (found, simulated) = hooks.replay_connectors()?;
+            let origins = simulated.then(|| {
+                world
+                    .robots
+                    .iter()
+                    .map(|r| Pose {
+                        x: r.position.x,
+                        y: r.position.y,
+                        theta: r.heading_rad,
+                    })
+                    .collect()
+            });
+            (found, origins, None)
+        }
     };
-    let robots = connect_all(&discovered, origins.as_deref(), &world).await?;
+    let discovered = hooks.tap(discovered, &world);
+    let observer = hooks.observer(&world, sim.clone());
+    let robots = connect_all(&discovered, origins.as_deref(), &world, &observer).await?;
     let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
     let config = BehaviourConfig {
         robots: ids,
@@ -170,6 +199,7 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
     );
     let model = supervisor.model();
     let supervisor = supervisor.start();
+    hooks.serve_panel(&supervisor, &robots, &world).await?;
     if let Some(h) = sim.clone() {
         let model = model.clone();
         if tracing::enabled!(target: "coordinator::truth", tracing::Level::DEBUG) {
@@ -226,6 +256,9 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         None => done_rx.await,
     }
     .context("supervisor stopped without a verdict")?;
+    // A replay runs to the recording's end whatever its behaviour decides, so every recorded
+    // snapshot can be checked.
+    hooks.replay_to_end().await;
     let experiment_time = tokio::time::Instant::now() - started;
     if let Some((bar, task)) = progress {
         task.abort();
@@ -264,12 +297,15 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
             distance_m: truth.as_ref().and_then(|t| t.distances_m.get(i).copied()),
             link: snap.link,
         });
+    }
+    hooks.linger(&outcome.verdict).await;
+    for (_, robot) in &robots {
         robot.close();
     }
     if let Some(h) = &sim {
         h.stop();
     }
-    Ok(Report {
+    let report = Report {
         behaviour: plan.behaviour.clone(),
         world: world.name.clone(),
         seed: plan.seed,
@@ -290,7 +326,8 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
         restarts: outcome.restarts,
         experiment_time,
         wall_time: wall.elapsed(),
-    })
+    };
+    hooks.finish(report, &observer).await
 }
 
 /// Where the line sensor sits ahead of the body centre (the simulated robot's).
@@ -340,6 +377,7 @@ async fn connect_all(
     found: &[Discovered],
     origins: Option<&[Pose]>,
     world: &World,
+    observer: &actix::Addr<Observer>,
 ) -> Result<Vec<(u16, Robot)>> {
     let mut robots = Vec::new();
     for (i, d) in found.iter().enumerate() {
@@ -348,6 +386,9 @@ async fn connect_all(
             ..RobotConfig::default()
         };
         let robot = Robot::start(Arc::clone(&d.connector), config);
+        // Before any packet: replay checks the observer's view after each robot's k-th update.
+        robot.subscribe(observer.clone().recipient());
+        robot.subscribe_events(observer.clone().recipient());
         let hello = tokio::time::timeout(Duration::from_secs(10), robot.connected())
             .await
             .with_context(|| format!("{} did not say hello within 10 s", d.name))??;

@@ -6,15 +6,27 @@
 //! - `safety`: the predictive check every intent passes.
 //! - `experiment`: wiring robots, supervisor and behaviour for one run.
 //! - `report`: the experiment report, as text or JSON.
+//! - `record`, `replay`: MCAP recording of a run and its replay.
+//! - `observer`, `instruments`: the actor that feeds the recorder, the panel and plots.
+//! - `panel`: the live web control panel.
+//! - `plot`: the trajectory plot of a run.
 #![warn(missing_docs)]
 
 pub mod experiment;
+pub mod instruments;
+pub mod observer;
+pub mod panel;
+pub mod plot;
+pub mod record;
+pub mod replay;
 pub mod report;
 pub mod safety;
 pub mod supervisor;
 pub mod world_model;
 
-pub use experiment::{load_world, run, LinkFault, Plan, Transport};
+pub use experiment::{load_world, run, run_with, LinkFault, Plan, Transport};
+pub use instruments::Run;
+pub use observer::Instruments;
 pub use report::{ObstacleReport, Report, RobotReport};
 
 /// An actix system on a current-thread tokio runtime, with its clock paused when `paused`: under a

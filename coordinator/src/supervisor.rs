@@ -377,3 +377,38 @@ impl Handler<Abort> for Supervisor {
         self.finish(Verdict::failure(msg.0), ctx);
     }
 }
+
+/// A command from the control panel: checked by the safety check like a behaviour's intent, then
+/// sent; the error says why it was held.
+#[derive(Message)]
+#[rtype(result = "Result<(), String>")]
+pub struct PanelIntent(pub Intent);
+
+impl Handler<PanelIntent> for Supervisor {
+    type Result = Result<(), String>;
+    fn handle(&mut self, msg: PanelIntent, _: &mut Context<Self>) -> Self::Result {
+        let world = self.snapshot_peek();
+        if self.carry_out(msg.0, &world) {
+            Ok(())
+        } else {
+            Err(self.held.last().map(|h| h.2.clone()).unwrap_or_default())
+        }
+    }
+}
+
+/// The panel's emergency stop: every robot stops and the behaviour is over.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct EStop;
+
+impl Handler<EStop> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, _: EStop, ctx: &mut Context<Self>) {
+        // Also when the behaviour is already over: the panel may have moved robots since.
+        self.stop_all();
+        self.finish(
+            Verdict::failure("emergency stop from the control panel"),
+            ctx,
+        );
+    }
+}

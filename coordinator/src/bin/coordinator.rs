@@ -2,20 +2,24 @@
 //! default, ending with a report; the exit status says whether the behaviour succeeded.
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use behaviours::Registry;
 use clap::{Parser, ValueEnum};
-use coordinator::{Plan, Transport};
+use coordinator::panel::PanelOptions;
+use coordinator::{Instruments, Plan, Transport};
 use simulator::world::presets;
 
 /// Run a supervised multi-robot experiment.
 #[derive(Parser, Debug)]
 #[command(
     version,
-    after_help = "Examples:\n  coordinator --behaviour square_walk --robots 3\n  coordinator --behaviour square_walk --world my_world.toml --seed 7 --json-report out.json\n  coordinator --transport tcp --robots tcp://127.0.0.1:7001,tcp://127.0.0.1:7002 --behaviour square_walk\n  coordinator --list-behaviours"
+    subcommand_negates_reqs = true,
+    after_help = "Examples:\n  coordinator --behaviour square_walk --robots 3\n  coordinator --behaviour cooperative_push --panel --record push.mcap\n  coordinator replay push.mcap --panel\n  coordinator --behaviour square_walk --world my_world.toml --seed 7 --json-report out.json\n  coordinator --transport tcp --robots tcp://127.0.0.1:7001,tcp://127.0.0.1:7002 --behaviour square_walk\n  coordinator --list-behaviours"
 )]
 struct Args {
     /// The behaviour to run (see --list-behaviours).
@@ -51,6 +55,39 @@ struct Args {
     /// List the built-in worlds and exit.
     #[arg(long)]
     list_worlds: bool,
+    /// Serve the live control panel (default 127.0.0.1:7878); any address but loopback requires
+    /// the token printed at start. Implies --realtime for simulated robots unless --fast.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_PANEL)]
+    panel: Option<SocketAddr>,
+    /// With --panel: still run simulated time as fast as possible.
+    #[arg(long)]
+    fast: bool,
+    /// Record every packet, the world snapshots and the robots' events to this MCAP file.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
+    /// Write the robots' trajectories over the track to this SVG file.
+    #[arg(long, value_name = "FILE.svg")]
+    plot: Option<PathBuf>,
+    #[command(subcommand)]
+    command: Option<Sub>,
+}
+
+const DEFAULT_PANEL: &str = "127.0.0.1:7878";
+
+#[derive(clap::Subcommand, Debug)]
+enum Sub {
+    /// Feed a recording's packets back through robot actors, the supervisor and its behaviour, and
+    /// check that every recorded world snapshot comes out the same.
+    Replay {
+        /// The recording.
+        file: PathBuf,
+        /// Serve the control panel during the replay (paced to the wall clock).
+        #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = DEFAULT_PANEL)]
+        panel: Option<SocketAddr>,
+        /// Write the replayed trajectories to this SVG file.
+        #[arg(long, value_name = "FILE.svg")]
+        plot: Option<PathBuf>,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -101,7 +138,8 @@ fn plan(args: &Args) -> Result<Plan> {
         robots,
         transport,
         seed: args.seed,
-        realtime: args.realtime,
+        // The panel is for watching: simulated time then runs at the wall clock's pace.
+        realtime: args.realtime || (args.panel.is_some() && !args.fast),
         duration: Duration::from_secs_f64(args.duration),
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
@@ -116,7 +154,8 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
-    let registry = Registry::builtin();
+    let mut registry = Registry::builtin();
+    coordinator::panel::register_teleop(&mut registry);
     if args.list_behaviours {
         for name in registry.names() {
             let e = registry.get(name).expect("listed");
@@ -132,7 +171,11 @@ fn main() -> ExitCode {
         }
         return ExitCode::SUCCESS;
     }
-    match run(&args, &registry) {
+    let result = match &args.command {
+        Some(Sub::Replay { file, panel, plot }) => replay(file, *panel, plot.as_deref(), &registry),
+        None => run(&args, &registry),
+    };
+    match result {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
         Err(e) => {
@@ -145,13 +188,98 @@ fn main() -> ExitCode {
 fn run(args: &Args, registry: &Registry) -> Result<bool> {
     let plan = plan(args)?;
     let simulated = plan.transport == Transport::Sim;
+    let world = plan_world(&plan, registry)?;
+    let instruments = Instruments {
+        record: args.record.clone(),
+        panel: args.panel.map(|addr| PanelOptions { addr, linger: true }),
+        trails: args.plot.is_some(),
+    };
     // Simulated experiments run on a paused clock: see `coordinator::actor_system`.
     let system = coordinator::actor_system(simulated && !plan.realtime);
-    let report = system.block_on(coordinator::run(plan, registry))?;
+    let run = system.block_on(coordinator::run_with(plan, registry, instruments))?;
+    let report = &run.report;
     println!("{report}");
     if let Some(path) = &args.json_report {
         std::fs::write(path, report.to_json())
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    finish(&run, &world, args.plot.as_deref())?;
     Ok(report.verdict.success)
+}
+
+/// The world a plan runs in, for the plot.
+fn plan_world(plan: &Plan, registry: &Registry) -> Result<simulator::world::World> {
+    let name = match &plan.world {
+        Some(w) => w.clone(),
+        None => registry
+            .get(&plan.behaviour)
+            .map(|e| e.world.to_string())
+            .with_context(|| format!("unknown behaviour {:?}", plan.behaviour))?,
+    };
+    coordinator::load_world(&name)
+}
+
+fn finish(
+    run: &coordinator::Run,
+    world: &simulator::world::World,
+    plot: Option<&std::path::Path>,
+) -> Result<()> {
+    if let Some((path, stats)) = &run.recording {
+        println!(
+            "recording: {} ({} messages, {} packets, {} bytes)",
+            path.display(),
+            stats.messages,
+            stats.packets,
+            stats.bytes
+        );
+    }
+    if let Some(path) = plot {
+        coordinator::plot::write_trajectories(
+            path,
+            world,
+            &run.observed.trails,
+            &run.observed.truth_trails,
+        )?;
+        println!("trajectories: {}", path.display());
+    }
+    Ok(())
+}
+
+fn replay(
+    file: &std::path::Path,
+    panel: Option<SocketAddr>,
+    plot: Option<&std::path::Path>,
+    registry: &Registry,
+) -> Result<bool> {
+    let recording = coordinator::replay::load(file)?;
+    if let Some(why) = &recording.truncated {
+        eprintln!("coordinator: the recording ends early ({why}); replaying what is there");
+    }
+    let info = &recording.info;
+    let plan = Plan {
+        behaviour: info.behaviour.clone(),
+        world: Some(info.world.clone()),
+        robots: Some(info.robots),
+        transport: Transport::Replay(file.to_path_buf()),
+        seed: info.seed,
+        realtime: panel.is_some(),
+        duration: recording.end + Duration::from_secs(5),
+        params: info.params.clone(),
+        faults: Vec::new(),
+    };
+    let world = plan_world(&plan, registry)?;
+    let instruments = Instruments {
+        record: None,
+        panel: panel.map(|addr| PanelOptions { addr, linger: true }),
+        trails: plot.is_some(),
+    };
+    let system = coordinator::actor_system(panel.is_none());
+    let run = system.block_on(coordinator::run_with(plan, registry, instruments))?;
+    let check = run
+        .replay
+        .clone()
+        .context("the replay produced no comparison")?;
+    println!("{check}");
+    finish(&run, &world, plot)?;
+    Ok(check.exact())
 }

@@ -1,0 +1,215 @@
+//! The experiment's optional instruments, wired in at a few points of [`crate::run_with`]: the
+//! MCAP recorder (a tap on every link and the observer's snapshots), replay's links and check,
+//! and the control panel.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use actix::{Actor, Addr};
+use anyhow::{Context as _, Result};
+use behaviours::Verdict;
+use robot_actor::link::Discovered;
+use robot_actor::Robot;
+use serde_json::json;
+use simulator::runtime::SimHandle;
+use simulator::world::World;
+use tokio::sync::broadcast;
+use tokio::time::Instant;
+
+use crate::experiment::{Plan, Transport};
+use crate::observer::{
+    track_lines, BoxShape, Instruments, Observed, Observer, ObserverSetup, TakeObserved, BODY_M,
+};
+use crate::panel::{PanelContext, PanelServer};
+use crate::record::{RecordStats, Recorder, RunInfo, Tap};
+use crate::replay::{Recording, ReplayCheck};
+use crate::report::Report;
+use crate::supervisor::Supervisor;
+
+/// Everything a run produced.
+#[derive(Debug)]
+pub struct Run {
+    /// The report.
+    pub report: Report,
+    /// Trails and replay captures.
+    pub observed: Observed,
+    /// A replay's comparison with its recording.
+    pub replay: Option<ReplayCheck>,
+    /// The recording written, and its totals.
+    pub recording: Option<(PathBuf, RecordStats)>,
+    /// Messages in the recording replayed, per topic, and whether it was cut short.
+    pub replayed: Option<(std::collections::BTreeMap<String, u64>, Option<String>)>,
+}
+
+pub(crate) struct Hooks {
+    instruments: Instruments,
+    recorder: Option<Arc<Recorder>>,
+    replay: Option<Arc<Recording>>,
+    t0: Instant,
+    feed: Option<broadcast::Sender<Arc<str>>>,
+    panel: Option<PanelServer>,
+}
+
+impl Hooks {
+    pub(crate) fn new(
+        plan: &Plan,
+        world_name: &str,
+        robots: usize,
+        instruments: Instruments,
+    ) -> Result<Self> {
+        let replay = match &plan.transport {
+            Transport::Replay(path) => Some(Arc::new(crate::replay::load(path)?)),
+            _ => None,
+        };
+        let recorder = match &instruments.record {
+            Some(path) => Some(Recorder::create(
+                path,
+                &RunInfo {
+                    behaviour: plan.behaviour.clone(),
+                    world: world_name.to_string(),
+                    robots,
+                    seed: plan.seed,
+                    params: plan.params.clone(),
+                    simulated: matches!(plan.transport, Transport::Sim)
+                        || replay.as_ref().is_some_and(|r| r.info.simulated),
+                    start_unix_ns: std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_nanos() as u64),
+                },
+            )?),
+            None => None,
+        };
+        let t0 = recorder.as_ref().map_or_else(Instant::now, |r| r.t0());
+        let feed = instruments.panel.as_ref().map(|_| broadcast::channel(64).0);
+        Ok(Self {
+            instruments,
+            recorder,
+            replay,
+            t0,
+            feed,
+            panel: None,
+        })
+    }
+
+    /// A replay's links, starting now, and whether the recorded robots were simulated.
+    pub(crate) fn replay_connectors(&mut self) -> Result<(Vec<Discovered>, bool)> {
+        let rec = self
+            .replay
+            .as_ref()
+            .context("replay transport without a recording")?;
+        self.t0 = Instant::now();
+        Ok((rec.connectors(self.t0), rec.info.simulated))
+    }
+
+    pub(crate) fn tap(&self, found: Vec<Discovered>, world: &World) -> Vec<Discovered> {
+        let Some(rec) = &self.recorder else {
+            return found;
+        };
+        found
+            .into_iter()
+            .enumerate()
+            .map(|(i, d)| {
+                let id = world.robots.get(i).map_or(0, |r| r.id);
+                Discovered {
+                    name: d.name,
+                    connector: Arc::new(Tap::new(d.connector, i, id, Arc::clone(rec))),
+                }
+            })
+            .collect()
+    }
+
+    pub(crate) fn observer(&self, world: &World, sim: Option<SimHandle>) -> Addr<Observer> {
+        let setup = ObserverSetup {
+            track: Arc::new(world.track.clone()),
+            arena: (world.arena.width_m, world.arena.height_m),
+            boxes: boxes(world),
+            recorder: self.recorder.clone(),
+            feed: self.feed.clone(),
+            wanted: self.replay.as_ref().map(|r| r.wanted()),
+            sim,
+        };
+        Observer::new(setup, self.t0).start()
+    }
+
+    pub(crate) async fn serve_panel(
+        &mut self,
+        supervisor: &Addr<Supervisor>,
+        robots: &[(u16, Robot)],
+        world: &World,
+    ) -> Result<()> {
+        let (Some(options), Some(feed)) = (&self.instruments.panel, &self.feed) else {
+            return Ok(());
+        };
+        let scene = json!({
+            "arena": [world.arena.width_m, world.arena.height_m],
+            "track": track_lines(&world.track),
+            "boxes": boxes(world).iter().map(|b| json!({"size": [b.size.0, b.size.1], "pose": b.pose})).collect::<Vec<_>>(),
+            "robots": robots.iter().map(|(id, _)| *id).collect::<Vec<_>>(),
+            "body": [BODY_M.0, BODY_M.1],
+            "replay": self.replay.is_some(),
+        });
+        let server = crate::panel::serve(
+            options.addr,
+            PanelContext {
+                supervisor: supervisor.clone(),
+                robots: robots.to_vec(),
+                feed: feed.clone(),
+                scene,
+            },
+        )
+        .await?;
+        eprintln!("coordinator: control panel at {}", server.url);
+        self.panel = Some(server);
+        Ok(())
+    }
+
+    pub(crate) async fn replay_to_end(&self) {
+        if let Some(r) = &self.replay {
+            tokio::time::sleep_until(self.t0 + r.end + Duration::from_millis(300)).await;
+        }
+    }
+
+    pub(crate) async fn linger(&self, verdict: &Verdict) {
+        if self.panel.is_some() && self.instruments.panel.as_ref().is_some_and(|p| p.linger) {
+            eprintln!(
+                "coordinator: experiment over ({}); the panel stays up until Ctrl-C",
+                verdict.summary
+            );
+            let _ = tokio::signal::ctrl_c().await;
+        }
+    }
+
+    pub(crate) async fn finish(self, report: Report, observer: &Addr<Observer>) -> Result<Run> {
+        let observed = observer.send(TakeObserved).await.context("observer gone")?;
+        let replay = self
+            .replay
+            .as_ref()
+            .map(|r| crate::replay::check(r, &observed.captured));
+        let recording = match &self.recorder {
+            Some(rec) => Some((rec.path().to_path_buf(), rec.finish()?)),
+            None => None,
+        };
+        Ok(Run {
+            report,
+            observed,
+            replay,
+            recording,
+            replayed: self
+                .replay
+                .as_ref()
+                .map(|r| (r.counts.clone(), r.truncated.clone())),
+        })
+    }
+}
+
+fn boxes(world: &World) -> Vec<BoxShape> {
+    world
+        .obstacles
+        .iter()
+        .map(|o| BoxShape {
+            size: (o.width_m, o.height_m),
+            pose: [o.position.x, o.position.y, o.heading_rad],
+        })
+        .collect()
+}

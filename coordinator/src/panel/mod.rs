@@ -1,0 +1,389 @@
+//! The live control panel: one HTML page (shipped in the binary) over a WebSocket fed by the
+//! observer's snapshots. Every motion command from the page goes through the supervisor's safety
+//! check; settings go through the robot actor's typed settings reflection (written, then read
+//! back).
+//!
+//! The panel listens on loopback by default. On any other address every request, the WebSocket
+//! included, must carry the token printed at start (`?token=…` or `Authorization: Bearer …`).
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use actix::Addr;
+use anyhow::{Context as _, Result};
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::{Request, State};
+use axum::http::StatusCode;
+use axum::middleware::{self, Next};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use behaviours::{Behaviour, Intent, MoveCommand, Registry, Verdict, WorldSnapshot};
+use protocol::packets::ReflectorMode;
+use robot_actor::actor::{Command, ReflectorSetup, WriteSettings};
+use robot_actor::Robot;
+use serde_json::{json, Value};
+use tokio::sync::broadcast;
+
+use crate::record::{leaf_bytes, leaf_value, leaves, Leaf};
+use crate::supervisor::{EStop, PanelIntent, Supervisor};
+
+const INDEX: &str = include_str!("index.html");
+
+/// Reflector period while a robot's PID view is open (reduced state), milliseconds.
+pub const PID_PERIOD_MS: u16 = 10;
+
+/// How to serve the panel.
+#[derive(Clone, Debug)]
+pub struct PanelOptions {
+    /// Listen address; port 0 picks a free one.
+    pub addr: SocketAddr,
+    /// Keep serving after the experiment's verdict, until Ctrl-C.
+    pub linger: bool,
+}
+
+/// What the panel serves from.
+#[derive(Clone)]
+pub struct PanelContext {
+    /// Commands go through it.
+    pub supervisor: Addr<Supervisor>,
+    /// The robots, for settings and the reflector.
+    pub robots: Vec<(u16, Robot)>,
+    /// Snapshot frames from the observer.
+    pub feed: broadcast::Sender<Arc<str>>,
+    /// What does not change: arena, track, boxes' sizes, robot ids.
+    pub scene: Value,
+}
+
+/// A running panel.
+#[derive(Debug)]
+pub struct PanelServer {
+    /// Where it listens.
+    pub addr: SocketAddr,
+    /// Required on every request when not on loopback.
+    pub token: Option<String>,
+    /// The page's address, token included.
+    pub url: String,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for PanelServer {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// A fresh 128-bit token from the standard library's randomly keyed hasher (keyed from the OS).
+fn new_token() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    let mut out = String::new();
+    for salt in 0..2u64 {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u64(salt);
+        h.write_u128(
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_nanos())
+                .unwrap_or(0),
+        );
+        out.push_str(&format!("{:016x}", h.finish()));
+    }
+    out
+}
+
+#[derive(Clone)]
+struct AppState {
+    ctx: PanelContext,
+    token: Option<Arc<str>>,
+}
+
+/// Starts serving on the current tokio runtime.
+///
+/// # Errors
+/// The address cannot be bound.
+pub async fn serve(addr: SocketAddr, ctx: PanelContext) -> Result<PanelServer> {
+    let token = (!addr.ip().is_loopback()).then(new_token);
+    let state = AppState {
+        ctx,
+        token: token.as_deref().map(Arc::from),
+    };
+    let app = Router::new()
+        .route("/", get(|| async { Html(INDEX) }))
+        .route("/ws", get(ws))
+        .layer(middleware::from_fn_with_state(state.clone(), require_token))
+        .with_state(state);
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("panel: cannot listen on {addr}"))?;
+    let local = listener.local_addr()?;
+    let task = tokio::spawn(async move {
+        if let Err(e) = axum::serve(listener, app).await {
+            tracing::warn!(error = %e, "panel server stopped");
+        }
+    });
+    let shown = if local.ip().is_unspecified() {
+        SocketAddr::new(std::net::Ipv4Addr::LOCALHOST.into(), local.port())
+    } else {
+        local
+    };
+    let url = match &token {
+        Some(t) => format!("http://{shown}/?token={t}"),
+        None => format!("http://{shown}/"),
+    };
+    Ok(PanelServer {
+        addr: local,
+        token,
+        url,
+        task,
+    })
+}
+
+async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let Some(token) = &state.token else {
+        return next.run(req).await;
+    };
+    let in_query = req
+        .uri()
+        .query()
+        .into_iter()
+        .flat_map(|q| q.split('&'))
+        .any(|kv| kv.strip_prefix("token=") == Some(token));
+    let in_header = req
+        .headers()
+        .get(axum::http::header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        == Some(token);
+    if in_query || in_header {
+        next.run(req).await
+    } else {
+        (
+            StatusCode::UNAUTHORIZED,
+            "this panel needs its token: open the URL the coordinator printed\n",
+        )
+            .into_response()
+    }
+}
+
+async fn ws(upgrade: WebSocketUpgrade, State(state): State<AppState>) -> Response {
+    upgrade.on_upgrade(move |socket| session(socket, state.ctx))
+}
+
+fn settings_leaves() -> Vec<Leaf> {
+    leaves(&<protocol::Settings as protocol::Layout>::LAYOUT)
+}
+
+async fn session(mut socket: WebSocket, ctx: PanelContext) {
+    let fields: Vec<Value> = settings_leaves()
+        .iter()
+        .map(|l| json!({"path": l.path, "type": l.ty}))
+        .collect();
+    let hello = json!({"type": "hello", "scene": ctx.scene, "settings": fields});
+    if socket
+        .send(Message::Text(hello.to_string().into()))
+        .await
+        .is_err()
+    {
+        return;
+    }
+    let mut feed = ctx.feed.subscribe();
+    loop {
+        tokio::select! {
+            frame = feed.recv() => match frame {
+                Ok(f) => {
+                    if socket.send(Message::Text(f.to_string().into())).await.is_err() {
+                        return;
+                    }
+                }
+                // A slow page skips frames rather than holding the observer up.
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => return,
+            },
+            msg = socket.recv() => {
+                let text = match msg {
+                    Some(Ok(Message::Text(t))) => t.to_string(),
+                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+                    Some(Ok(_)) => continue,
+                };
+                let reply = match serde_json::from_str::<Value>(&text) {
+                    Ok(cmd) => {
+                        let id = cmd["id"].clone();
+                        let mut r = command(&ctx, &cmd).await;
+                        r["id"] = id;
+                        r
+                    }
+                    Err(e) => json!({"type": "reply", "ok": false, "message": format!("not JSON: {e}")}),
+                };
+                if socket.send(Message::Text(reply.to_string().into())).await.is_err() {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+fn ok(message: impl Into<String>) -> Value {
+    json!({"type": "reply", "ok": true, "message": message.into()})
+}
+
+fn fail(message: impl Into<String>) -> Value {
+    json!({"type": "reply", "ok": false, "message": message.into()})
+}
+
+fn num(cmd: &Value, key: &str) -> Result<f32, String> {
+    cmd[key]
+        .as_f64()
+        .filter(|v| v.is_finite())
+        .map(|v| v as f32)
+        .ok_or_else(|| format!("{key} must be a number"))
+}
+
+/// Carries out one command from the page and says how it went.
+pub async fn command(ctx: &PanelContext, cmd: &Value) -> Value {
+    match run_command(ctx, cmd).await {
+        Ok(v) => v,
+        Err(e) => fail(e),
+    }
+}
+
+async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
+    let name = cmd["cmd"].as_str().unwrap_or("");
+    if name == "estop" {
+        ctx.supervisor
+            .send(EStop)
+            .await
+            .map_err(|e| format!("supervisor unreachable: {e}"))?;
+        return Ok(ok("every robot stopped; the behaviour is over"));
+    }
+    let id = cmd["robot"]
+        .as_u64()
+        .and_then(|v| u16::try_from(v).ok())
+        .ok_or("robot must be a robot id")?;
+    let robot = ctx
+        .robots
+        .iter()
+        .find(|(r, _)| *r == id)
+        .map(|(_, r)| r)
+        .ok_or_else(|| format!("no robot {id}"))?;
+    let intent = match name {
+        "wheels" => Intent::WheelSpeeds {
+            robot: id,
+            left: num(cmd, "left")?,
+            right: num(cmd, "right")?,
+        },
+        "straight" => Intent::Move {
+            robot: id,
+            command: MoveCommand::Straight {
+                distance_m: num(cmd, "distance")?,
+                speed_mps: num(cmd, "speed")?,
+            },
+        },
+        "rotate" => Intent::Move {
+            robot: id,
+            command: MoveCommand::Rotate {
+                angle_deg: num(cmd, "angle")?,
+                speed_mps: num(cmd, "speed")?,
+            },
+        },
+        "stop" => Intent::Stop { robot: id },
+        "settings" => {
+            let s = robot
+                .read_settings()
+                .await
+                .map_err(|e| format!("reading settings: {e}"))?;
+            let bytes = bytemuck::bytes_of(&s);
+            let values: serde_json::Map<String, Value> = settings_leaves()
+                .iter()
+                .map(|l| (l.path.clone(), leaf_value(l, bytes)))
+                .collect();
+            return Ok(json!({"type": "settings", "ok": true, "robot": id, "values": values}));
+        }
+        "set" => {
+            let path = cmd["path"].as_str().ok_or("path must be a settings path")?;
+            let leaf = settings_leaves()
+                .into_iter()
+                .find(|l| l.path == path)
+                .ok_or_else(|| format!("no setting {path:?}"))?;
+            let text = match &cmd["value"] {
+                Value::String(s) => s.clone(),
+                v => v.to_string(),
+            };
+            let bytes = leaf_bytes(&leaf, &text)?;
+            robot
+                .addr()
+                .send(WriteSettings {
+                    offset: leaf.offset,
+                    bytes,
+                })
+                .await
+                .map_err(|e| format!("robot unreachable: {e}"))?
+                .map_err(|e| format!("writing {path}: {e}"))?;
+            // Read the whole block back from the robot, not from the host's mirror.
+            let s = robot
+                .read_settings()
+                .await
+                .map_err(|e| format!("reading back: {e}"))?;
+            let value = leaf_value(&leaf, bytemuck::bytes_of(&s));
+            return Ok(
+                json!({"type": "reply", "ok": true, "robot": id, "path": path,
+                "value": value, "message": format!("robot {id}: {path} read back {value}")}),
+            );
+        }
+        "pid" => {
+            let on = cmd["on"].as_bool().unwrap_or(false);
+            let setup = if on {
+                ReflectorSetup {
+                    mode: ReflectorMode::Reduced,
+                    period_ms: PID_PERIOD_MS,
+                }
+            } else {
+                robot_actor::RobotConfig::default().reflector
+            };
+            robot
+                .addr()
+                .send(Command::Reflector(setup))
+                .await
+                .map_err(|e| format!("robot unreachable: {e}"))?
+                .map_err(|e| format!("reflector: {e}"))?;
+            return Ok(ok(if on {
+                format!("robot {id}: reduced state every {PID_PERIOD_MS} ms")
+            } else {
+                format!("robot {id}: full state again")
+            }));
+        }
+        other => return Err(format!("unknown command {other:?}")),
+    };
+    ctx.supervisor
+        .send(PanelIntent(intent))
+        .await
+        .map_err(|e| format!("supervisor unreachable: {e}"))?
+        .map_err(|why| format!("held by the safety check: {why}"))?;
+    Ok(ok(format!("robot {id}: {name} sent")))
+}
+
+/// A behaviour that does nothing and never ends: the robots wait for the control panel.
+#[derive(Debug, Default)]
+pub struct Teleop;
+
+impl Behaviour for Teleop {
+    fn start(&mut self, _: &WorldSnapshot) -> Vec<Intent> {
+        Vec::new()
+    }
+    fn on_snapshot(&mut self, _: &WorldSnapshot) -> Vec<Intent> {
+        Vec::new()
+    }
+    fn verdict(&self) -> Option<Verdict> {
+        None
+    }
+}
+
+/// Adds `teleop` (robots driven from the panel only) to a registry.
+pub fn register_teleop(registry: &mut Registry) {
+    registry.register(
+        "teleop",
+        "robots wait for commands from the control panel (use with --panel); runs until the \
+         time limit, the e-stop or Ctrl-C",
+        "oval",
+        |_| Ok(Box::new(Teleop)),
+    );
+}

@@ -1,0 +1,501 @@
+//! The control panel: the token rule off loopback, and the page itself driven in headless
+//! Chromium over the DevTools protocol (robots shown, joystick drive, settings write with
+//! read-back, e-stop, phone-sized layout, screenshot).
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use futures::{SinkExt, StreamExt};
+use serde_json::{json, Value};
+use tokio_tungstenite::tungstenite::Message;
+
+/// A coordinator child process, killed when dropped.
+struct Coordinator {
+    child: Child,
+    url: String,
+}
+
+impl Drop for Coordinator {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `coordinator ARGS` and waits for the panel's address on its stderr.
+fn coordinator(args: &[&str]) -> Coordinator {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("coordinator starts");
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            eprintln!("coordinator: {line}");
+            if let Some(url) = line.split("control panel at ").nth(1) {
+                let _ = tx.send(url.trim().to_string());
+            }
+        }
+    });
+    let url = rx
+        .recv_timeout(Duration::from_secs(120))
+        .expect("the coordinator printed the panel's address");
+    Coordinator { child, url }
+}
+
+fn addr_of(url: &str) -> SocketAddr {
+    let host = url.trim_start_matches("http://").split('/').next().unwrap();
+    host.parse().unwrap()
+}
+
+/// One HTTP/1.0 request; returns the status code and body.
+fn http(addr: SocketAddr, path: &str, headers: &[&str]) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    let mut req = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n");
+    if !headers.iter().any(|h| h.starts_with("Connection:")) {
+        req.push_str("Connection: close\r\n");
+    }
+    for h in headers {
+        req.push_str(h);
+        req.push_str("\r\n");
+    }
+    req.push_str("\r\n");
+    s.write_all(req.as_bytes()).unwrap();
+    let mut out = String::new();
+    // A switched protocol keeps the connection open: its status line is all that is needed.
+    let mut buf = [0u8; 4096];
+    while let Ok(n) = s.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+        out.push_str(&String::from_utf8_lossy(&buf[..n]));
+        if out.starts_with("HTTP/1.1 101") && out.contains("\r\n\r\n") {
+            break;
+        }
+    }
+    let status = out
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = out.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
+    (status, body)
+}
+
+/// This machine's address on its default route, if it has one; loopback otherwise.
+fn outward_ip() -> std::net::IpAddr {
+    std::net::UdpSocket::bind("0.0.0.0:0")
+        .and_then(|s| {
+            s.connect("192.0.2.1:9")?;
+            s.local_addr()
+        })
+        .map(|a| a.ip())
+        .ok()
+        .filter(|ip| !ip.is_unspecified())
+        .unwrap_or(std::net::Ipv4Addr::LOCALHOST.into())
+}
+
+#[test]
+fn off_loopback_every_request_needs_the_token() {
+    let c = coordinator(&[
+        "--behaviour",
+        "teleop",
+        "--panel",
+        "0.0.0.0:0",
+        "--duration",
+        "120",
+    ]);
+    let token = c
+        .url
+        .split("token=")
+        .nth(1)
+        .expect("a token is printed for a non-loopback panel")
+        .to_string();
+    assert!(token.len() >= 32, "{token}");
+    let port = addr_of(&c.url).port();
+    let addr = SocketAddr::new(outward_ip(), port);
+    eprintln!("asking {addr}");
+    let ws = [
+        "Upgrade: websocket",
+        "Connection: Upgrade",
+        "Sec-WebSocket-Version: 13",
+        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+    ];
+
+    let (status, body) = http(addr, "/", &[]);
+    assert_eq!(status, 401, "{body}");
+    assert!(body.contains("token"), "{body}");
+    assert_eq!(http(addr, "/?token=wrong", &[]).0, 401);
+    assert_eq!(http(addr, "/ws", &ws).0, 401);
+    assert_eq!(http(addr, "/ws?token=nope", &ws).0, 401);
+
+    let (status, body) = http(addr, &format!("/?token={token}"), &[]);
+    assert_eq!(status, 200);
+    assert!(body.contains("PocketFleet"));
+    let bearer = format!("Authorization: Bearer {token}");
+    assert_eq!(http(addr, "/", &[&bearer]).0, 200);
+    assert_eq!(http(addr, &format!("/ws?token={token}"), &ws).0, 101);
+}
+
+#[test]
+fn loopback_panel_needs_no_token() {
+    let c = coordinator(&[
+        "--behaviour",
+        "teleop",
+        "--panel",
+        "127.0.0.1:0",
+        "--duration",
+        "120",
+    ]);
+    assert!(!c.url.contains("token"), "{}", c.url);
+    let (status, body) = http(addr_of(&c.url), "/", &[]);
+    assert_eq!(status, 200);
+    assert!(body.contains("<svg id=\"arena\""));
+}
+
+// ---- headless Chromium over the DevTools protocol ----
+
+struct Browser {
+    child: Child,
+    _dir: PathBuf,
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn chromium() -> Option<PathBuf> {
+    std::env::var_os("CHROMIUM").map(PathBuf::from).or_else(|| {
+        ["/usr/bin/chromium", "/usr/bin/chromium-browser"]
+            .iter()
+            .map(PathBuf::from)
+            .find(|p| p.exists())
+    })
+}
+
+/// Starts headless Chromium and returns it with its first page's DevTools WebSocket address.
+fn launch(exe: &Path) -> (Browser, String) {
+    let dir = std::env::temp_dir().join(format!("pocketfleet-chromium-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let child = Command::new(exe)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--remote-debugging-port=0",
+            "--window-size=1280,1000",
+        ])
+        .arg(format!("--user-data-dir={}", dir.display()))
+        .arg("about:blank")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromium starts");
+    let browser = Browser {
+        child,
+        _dir: dir.clone(),
+    };
+    let port_file = dir.join("DevToolsActivePort");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let port: u16 = loop {
+        if let Some(p) = std::fs::read_to_string(&port_file)
+            .ok()
+            .and_then(|s| s.lines().next().and_then(|l| l.trim().parse().ok()))
+        {
+            break p;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "chromium wrote no DevToolsActivePort"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let addr: SocketAddr = ([127, 0, 0, 1], port).into();
+    let page = loop {
+        let (_, body) = http(addr, "/json/list", &[]);
+        let list: Value = serde_json::from_str(&body).unwrap_or(Value::Null);
+        if let Some(url) = list
+            .as_array()
+            .into_iter()
+            .flatten()
+            .find(|t| t["type"] == "page")
+            .and_then(|t| t["webSocketDebuggerUrl"].as_str())
+        {
+            break url.to_string();
+        }
+        assert!(Instant::now() < deadline, "chromium lists no page");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    (browser, page)
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+struct Cdp {
+    ws: Ws,
+    next: u64,
+}
+
+impl Cdp {
+    async fn call(&mut self, method: &str, params: Value) -> Value {
+        self.next += 1;
+        let id = self.next;
+        let msg = json!({"id": id, "method": method, "params": params}).to_string();
+        self.ws.send(Message::Text(msg.into())).await.unwrap();
+        loop {
+            let m = self.ws.next().await.expect("DevTools open").unwrap();
+            let Message::Text(t) = m else { continue };
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["id"] == json!(id) {
+                assert!(v["error"].is_null(), "{method}: {}", v["error"]);
+                return v["result"].clone();
+            }
+        }
+    }
+
+    async fn eval(&mut self, expression: &str) -> Value {
+        let r = self
+            .call(
+                "Runtime.evaluate",
+                json!({"expression": expression, "returnByValue": true}),
+            )
+            .await;
+        assert!(
+            r["exceptionDetails"].is_null(),
+            "{expression}: {}",
+            r["exceptionDetails"]
+        );
+        r["result"]["value"].clone()
+    }
+
+    /// Polls a page expression until `ok` holds, failing with `what` after `secs`.
+    async fn until(
+        &mut self,
+        expression: &str,
+        secs: u64,
+        what: &str,
+        ok: impl Fn(&Value) -> bool,
+    ) -> Value {
+        let deadline = Instant::now() + Duration::from_secs(secs);
+        loop {
+            let v = self.eval(expression).await;
+            if ok(&v) {
+                return v;
+            }
+            assert!(Instant::now() < deadline, "{what}: last {v}");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+
+    async fn mouse(&mut self, kind: &str, x: f64, y: f64) {
+        self.call(
+            "Input.dispatchMouseEvent",
+            json!({"type": kind, "x": x, "y": y, "button": "left", "buttons": 1, "clickCount": 1}),
+        )
+        .await;
+    }
+
+    async fn screenshot(&mut self, path: &Path) {
+        let r = self
+            .call("Page.captureScreenshot", json!({"format": "png"}))
+            .await;
+        let png = base64(r["data"].as_str().unwrap());
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+        std::fs::write(path, png).unwrap();
+    }
+}
+
+fn base64(s: &str) -> Vec<u8> {
+    let val = |c: u8| match c {
+        b'A'..=b'Z' => c - b'A',
+        b'a'..=b'z' => c - b'a' + 26,
+        b'0'..=b'9' => c - b'0' + 52,
+        b'+' => 62,
+        _ => 63,
+    };
+    let clean: Vec<u8> = s.bytes().filter(|c| *c != b'=' && *c != b'\n').collect();
+    let mut out = Vec::with_capacity(clean.len() * 3 / 4);
+    for chunk in clean.chunks(4) {
+        let mut n = 0u32;
+        for (i, c) in chunk.iter().enumerate() {
+            n |= u32::from(val(*c)) << (18 - 6 * i);
+        }
+        let bytes = n.to_be_bytes();
+        out.extend_from_slice(&bytes[1..chunk.len()]);
+    }
+    out
+}
+
+fn pose_of(v: &Value, id: u64) -> Option<(f64, f64)> {
+    v.as_array()?
+        .iter()
+        .find(|r| r["id"] == json!(id))
+        .map(|r| (r["x"].as_f64().unwrap(), r["y"].as_f64().unwrap()))
+}
+
+#[test]
+fn panel_drives_robots_in_headless_chromium() {
+    let Some(exe) = chromium() else {
+        assert!(
+            std::env::var_os("POCKETFLEET_REQUIRE_CHROMIUM").is_none(),
+            "POCKETFLEET_REQUIRE_CHROMIUM is set but chromium is not installed"
+        );
+        println!("skipped: chromium is not installed (apt-get install chromium)");
+        return;
+    };
+    let c = coordinator(&[
+        "--behaviour",
+        "teleop",
+        "--world",
+        "oval",
+        "--panel",
+        "127.0.0.1:0",
+        "--duration",
+        "300",
+    ]);
+    let (_browser, page) = launch(&exe);
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async move {
+        let (ws, _) = tokio_tungstenite::connect_async(page.as_str()).await.unwrap();
+        let mut cdp = Cdp { ws, next: 0 };
+        cdp.call("Page.enable", json!({})).await;
+        cdp.call("Page.navigate", json!({"url": c.url})).await;
+
+        // Every robot is drawn, and live frames arrive.
+        cdp.until(
+            "document.querySelectorAll('#arena [data-robot]').length * 1000 + Math.min(window.pf ? pf.frames : 0, 999)",
+            60,
+            "two robots drawn and frames flowing",
+            |v| v.as_f64().is_some_and(|n| n >= 2005.0),
+        )
+        .await;
+        cdp.until("pf.truth ? pf.truth.robots : null", 30, "ground truth shown", |v| {
+            v.as_array().is_some_and(|a| a.len() == 2)
+        })
+        .await;
+
+        // A joystick drag (mouse pressed on the stick and pulled up) drives robot 1 forward.
+        cdp.eval("document.querySelector('[data-select=\"1\"]').click(); document.getElementById('joystick').scrollIntoView(); 0").await;
+        let rect = cdp
+            .eval("(() => { const r = document.getElementById('joystick').getBoundingClientRect(); return [r.left + r.width / 2, r.top + r.height / 2, r.height]; })()")
+            .await;
+        let (cx, cy, h) = (rect[0].as_f64().unwrap(), rect[1].as_f64().unwrap(), rect[2].as_f64().unwrap());
+        let before = pose_of(&cdp.eval("pf.truth.robots").await, 1).unwrap();
+        cdp.mouse("mousePressed", cx, cy).await;
+        for k in 1..=5 {
+            cdp.mouse("mouseMoved", cx, cy - h * 0.08 * f64::from(k)).await;
+        }
+        let moved = cdp
+            .until("pf.truth.robots", 30, "robot 1 drives while the stick is held", |v| {
+                pose_of(v, 1).is_some_and(|p| (p.0 - before.0).hypot(p.1 - before.1) > 0.03)
+            })
+            .await;
+        cdp.mouse("mouseReleased", cx, cy - h * 0.4).await;
+        let after = pose_of(&moved, 1).unwrap();
+        assert!(after.0 > before.0 + 0.02, "forward is +x for robot 1: {before:?} -> {after:?}");
+        cdp.until(
+            "pf.robots[1].state.wheels.left_target_mps",
+            10,
+            "releasing the stick stops the wheels",
+            |v| v.as_f64().is_some_and(|s| s.abs() < 1e-6),
+        )
+        .await;
+
+        // A settings change goes to the robot and is read back from it.
+        let original = cdp.eval("pf.send({cmd:'settings', robot:1}); 0").await;
+        assert_eq!(original, json!(0));
+        cdp.until("pf.settings['line_pid.kp']", 20, "settings read", Value::is_number).await;
+        cdp.eval("document.getElementById('set-path').value = 'line_pid.kp'; document.getElementById('set-value').value = '1.7'; document.getElementById('set-apply').click(); 0").await;
+        let status = cdp
+            .until(
+                "document.getElementById('settings-status').textContent",
+                20,
+                "the write is read back",
+                |v| v.as_str().is_some_and(|s| s.contains("read back")),
+            )
+            .await;
+        let kp = cdp.eval("pf.settings['line_pid.kp']").await.as_f64().unwrap();
+        assert!((kp - 1.7).abs() < 1e-6, "{status}: {kp}");
+
+        // Both robots on a long move, then the e-stop stops them all.
+        cdp.eval("pf.send({cmd:'straight', robot:1, distance:0.3, speed:0.1}); pf.send({cmd:'straight', robot:2, distance:0.3, speed:0.1}); 0").await;
+        cdp.until(
+            "Object.values(pf.robots).map(r => Math.abs(r.state.wheels.left_mps))",
+            20,
+            "both robots moving",
+            |v| v.as_array().is_some_and(|a| a.len() == 2 && a.iter().all(|s| s.as_f64().unwrap() > 0.03)),
+        )
+        .await;
+        let shot = std::env::var_os("POCKETFLEET_SCREENSHOT")
+            .map_or_else(|| std::env::temp_dir().join("pocketfleet-panel.png"), PathBuf::from);
+        cdp.eval("window.scrollTo(0, 0); 0").await;
+        cdp.screenshot(&shot).await;
+        cdp.eval("document.getElementById('estop').click(); 0").await;
+        cdp.until(
+            "pf.lastReply ? pf.lastReply.message : ''",
+            10,
+            "e-stop confirmed",
+            |v| v.as_str().is_some_and(|s| s.contains("every robot stopped")),
+        )
+        .await;
+        cdp.until(
+            "Object.values(pf.robots).map(r => [r.state.wheels.left_mps, r.state.wheels.right_mps, r.state.locomotion.queue_len])",
+            10,
+            "every robot stopped",
+            |v| {
+                v.as_array().is_some_and(|a| {
+                    a.len() == 2
+                        && a.iter().all(|r| {
+                            r[0].as_f64().unwrap().abs() < 0.005
+                                && r[1].as_f64().unwrap().abs() < 0.005
+                                && r[2] == json!(0)
+                        })
+                })
+            },
+        )
+        .await;
+
+        // On a phone-sized screen nothing runs off the side.
+        cdp.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": 390, "height": 844, "deviceScaleFactor": 2, "mobile": true}),
+        )
+        .await;
+        let width = cdp
+            .until("document.documentElement.scrollWidth", 10, "phone layout", |v| {
+                v.is_number()
+            })
+            .await;
+        let widest = cdp
+            .eval("[...document.querySelectorAll('body *')].filter(e => e.getBoundingClientRect().right > 391).map(e => e.tagName + '#' + e.id + '.' + e.className).slice(0, 8).join(' ')")
+            .await;
+        assert!(
+            width.as_f64().unwrap() <= 390.0,
+            "page is {width} px wide on a 390 px phone: {widest}"
+        );
+        if let Some(path) = std::env::var_os("POCKETFLEET_PHONE_SCREENSHOT") {
+            cdp.screenshot(Path::new(&path)).await;
+        }
+    });
+}
