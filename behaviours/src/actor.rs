@@ -32,6 +32,16 @@ pub struct Event {
     pub world: WorldSnapshot,
 }
 
+/// Intents the supervisor's safety check held back, with the reasons.
+#[derive(Message)]
+#[rtype(result = "Result<Reply, Panicked>")]
+pub struct Held {
+    /// Each held intent and why.
+    pub held: Vec<(Intent, String)>,
+    /// The latest snapshot.
+    pub world: WorldSnapshot,
+}
+
 /// What the behaviour answered.
 #[derive(Debug, Default)]
 pub struct Reply {
@@ -101,5 +111,18 @@ impl Handler<Event> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
     fn handle(&mut self, msg: Event, _: &mut Context<Self>) -> Self::Result {
         self.guarded(|b| b.on_event(msg.robot, &msg.kind, &msg.world))
+    }
+}
+
+impl Handler<Held> for BehaviourActor {
+    type Result = Result<Reply, Panicked>;
+    fn handle(&mut self, msg: Held, _: &mut Context<Self>) -> Self::Result {
+        self.guarded(|b| {
+            let mut out = Vec::new();
+            for (intent, reason) in &msg.held {
+                out.extend(b.on_held(intent, reason, &msg.world));
+            }
+            out
+        })
     }
 }

@@ -186,6 +186,11 @@ pub trait Behaviour: Send + 'static {
     ) -> Vec<Intent> {
         Vec::new()
     }
+    /// Intents for an intent of this behaviour that the supervisor's safety check held back
+    /// (it never reached the robot); a behaviour that counts its moves must count this one out.
+    fn on_held(&mut self, _intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+        Vec::new()
+    }
     /// The verdict once the behaviour is done; `None` while it runs.
     fn verdict(&self) -> Option<Verdict>;
 }
@@ -263,6 +268,20 @@ impl Registry {
                     cfg,
                 )?))
             },
+        );
+        r.register(
+            "token_ring",
+            "a token passes round robots following a track when they identify each other by IR \
+             (thesis A.3), around a box, reversing each round; success after three rounds",
+            "ring",
+            |cfg| Ok(Box::new(crate::token_ring::TokenRing::new(cfg)?)),
+        );
+        r.register(
+            "traffic_control",
+            "robots serve streams of goal nodes on a track graph with a deadlock-free plan \
+             (LaCAM) run as a dependency graph; success after 100 tasks without collision",
+            "junction",
+            |cfg| Ok(Box::new(crate::traffic_control::TrafficControl::new(cfg)?)),
         );
         r.register(
             "line_follow",

@@ -635,6 +635,17 @@ impl Behaviour for CooperativePush {
         }
     }
 
+    fn on_held(&mut self, intent: &Intent, reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+        // A manoeuvre planned around the box is not improvised when the supervisor refuses a
+        // step of it: the experiment stops with the reason.
+        match intent {
+            Intent::Move { robot, .. } => self.fail(format!(
+                "robot {robot}: the supervisor held back a manoeuvre: {reason}"
+            )),
+            _ => Vec::new(),
+        }
+    }
+
     fn verdict(&self) -> Option<Verdict> {
         self.verdict.clone()
     }

@@ -7,7 +7,9 @@ pub mod cooperative_push;
 pub mod line_follow;
 pub mod moves;
 pub mod square_walk;
+pub mod token_ring;
 pub mod track_loop;
+pub mod traffic_control;
 
 pub use actor::BehaviourActor;
 pub use api::{

@@ -316,6 +316,10 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             .map(|t| obstacle_reports(&world, t))
             .unwrap_or_default(),
         robot_collisions: truth.as_ref().map(|t| t.robot_collisions),
+        collision_log: truth
+            .as_ref()
+            .map(|t| t.collision_log.clone())
+            .unwrap_or_default(),
         wall_contacts: truth.as_ref().map(|t| t.wall_contacts),
         held_intents: outcome
             .held

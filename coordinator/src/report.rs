@@ -87,6 +87,8 @@ pub struct Report {
     pub obstacles: Vec<ObstacleReport>,
     /// Robot–robot contacts (ground truth; simulated robots only).
     pub robot_collisions: Option<usize>,
+    /// When each robot–robot contact began (simulated seconds) and between which robots.
+    pub collision_log: Vec<(f64, u16, u16)>,
     /// Robot–wall contacts (ground truth; simulated robots only).
     pub wall_contacts: Option<usize>,
     /// Intents the safety check held back.
@@ -253,6 +255,9 @@ impl fmt::Display for Report {
                 "  robot-robot collisions: {c}; wall contacts: {}",
                 self.wall_contacts.unwrap_or(0)
             )?;
+            for (t, a, b) in self.collision_log.iter().take(5) {
+                writeln!(f, "    at {t:.2} s: robots {a} and {b}")?;
+            }
         }
         writeln!(
             f,

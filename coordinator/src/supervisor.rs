@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actix::prelude::*;
-use behaviours::actor::{Event, Panicked, Reply, Snapshot, Start};
+use behaviours::actor::{Event, Held, Panicked, Reply, Snapshot, Start};
 use behaviours::{
     BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, Verdict, WorldSnapshot,
 };
@@ -185,6 +185,7 @@ impl Supervisor {
                 // Once a robot's move is held, its later moves in the same reply are held too:
                 // they were planned from where the held one would have left it.
                 let mut held_robots: Vec<u16> = Vec::new();
+                let before = self.held.len();
                 for intent in reply.intents {
                     let id = intent.robot();
                     if held_robots.contains(&id) && matches!(intent, Intent::Move { .. }) {
@@ -194,6 +195,21 @@ impl Supervisor {
                     }
                     if !self.carry_out(intent, &world) {
                         held_robots.push(id);
+                    }
+                }
+                // The behaviour hears what did not reach its robots.
+                if self.held.len() > before {
+                    if let Some(b) = self.behaviour.clone() {
+                        let held = self.held[before..]
+                            .iter()
+                            .map(|(_, i, why)| (*i, why.clone()))
+                            .collect();
+                        let reply = b.send(Held { held, world });
+                        ctx.spawn(
+                            reply
+                                .into_actor(self)
+                                .map(|r, act, ctx| act.on_reply(r, ctx)),
+                        );
                     }
                 }
                 if let Some(verdict) = reply.verdict {

@@ -21,8 +21,11 @@ const MATCH_M: f64 = 0.012;
 /// Heading and tape must agree this well (either direction) before the tape corrects the heading:
 /// a robot turning in place sweeps its sensor across tape it is not following.
 const ALIGNED_RAD: f64 = 20.0 * PI / 180.0;
-/// Near a junction several tapes are under the sensor at once, so it corrects nothing there.
+/// Near a junction several tapes are under the sensor at once, so it corrects nothing there:
+/// at least this close, and on a fork as far as its branches stay within `BRANCHES_APART_M`.
 const JUNCTION_CLEAR_M: f64 = 0.03;
+/// Branches closer than this (the sensor's half-width plus a tape) look like one tape.
+const BRANCHES_APART_M: f64 = 0.025;
 /// Share of the lateral error taken per state update (50 Hz: a time constant of about 0.1 s).
 const LATERAL_GAIN: f64 = 0.2;
 /// Share of the heading error taken per state update; lower than the lateral gain because the
@@ -61,6 +64,39 @@ impl Correction {
     }
 }
 
+/// Every junction and the radius around it in which its tapes run too close together to be told
+/// apart: a fork whose branch leaves tangentially on a 0.15 m arc needs about 8 cm, a crossing
+/// only the minimum.
+fn junction_zones(track: &Track) -> Vec<(Point2<f64>, f64)> {
+    let mut at: Vec<Vec<(usize, bool)>> = vec![Vec::new(); track.nodes().len()];
+    for (i, e) in track.edges().iter().enumerate() {
+        at[e.from].push((i, true));
+        at[e.to].push((i, false));
+    }
+    let along = |(edge, from_start): (usize, bool), s: f64| {
+        let len = track.edge_length(edge);
+        track.point_at(edge, if from_start { s } else { len - s }).0
+    };
+    at.iter()
+        .enumerate()
+        .filter(|(_, edges)| edges.len() >= 3)
+        .map(|(n, edges)| {
+            let mut radius = JUNCTION_CLEAR_M;
+            for (k, a) in edges.iter().enumerate() {
+                for b in &edges[k + 1..] {
+                    let limit = track.edge_length(a.0).min(track.edge_length(b.0));
+                    let mut s = 0.0;
+                    while s < limit && (along(*a, s) - along(*b, s)).norm() < BRANCHES_APART_M {
+                        s += 0.005;
+                    }
+                    radius = radius.max(s + 0.01);
+                }
+            }
+            (track.nodes()[n].position, radius)
+        })
+        .collect()
+}
+
 fn wrap(a: f64) -> f64 {
     (a + PI).rem_euclid(TAU) - PI
 }
@@ -71,25 +107,15 @@ pub struct WorldModel {
     robots: Arc<DashMap<u16, RobotView>>,
     corrections: Arc<DashMap<u16, Correction>>,
     track: Arc<Track>,
-    /// Positions of nodes where three or more tapes meet.
-    junctions: Arc<Vec<Point2<f64>>>,
+    /// Nodes where three or more tapes meet, and how far around each the tapes are too close
+    /// together for the sensor to tell them apart.
+    junctions: Arc<Vec<(Point2<f64>, f64)>>,
 }
 
 impl WorldModel {
     /// An empty model over `track`.
     pub fn new(track: Arc<Track>) -> Self {
-        let mut degree = vec![0usize; track.nodes().len()];
-        for e in track.edges() {
-            degree[e.from] += 1;
-            degree[e.to] += 1;
-        }
-        let junctions = track
-            .nodes()
-            .iter()
-            .zip(degree)
-            .filter(|(_, d)| *d >= 3)
-            .map(|(n, _)| n.position)
-            .collect();
+        let junctions = junction_zones(&track);
         Self {
             robots: Arc::new(DashMap::new()),
             corrections: Arc::new(DashMap::new()),
@@ -172,7 +198,7 @@ impl WorldModel {
             || self
                 .junctions
                 .iter()
-                .any(|j| (j - at_seen.point).norm() < JUNCTION_CLEAR_M)
+                .any(|(j, r)| (j - at_seen.point).norm() < *r)
         {
             return None;
         }

@@ -60,7 +60,12 @@ impl Move {
             MoveKind::Arc {
                 radius_m,
                 angle_rad,
-            } => (angle_rad * (radius_m - half), angle_rad * (radius_m + half)),
+            } => {
+                // Always forward: a negative angle is a right turn with the centre to the right,
+                // so the left wheel is then the outer one.
+                let along = angle_rad.abs() * radius_m;
+                (along - angle_rad * half, along + angle_rad * half)
+            }
         }
     }
 
@@ -393,6 +398,18 @@ mod tests {
         };
         let (l, r) = a.wheel_distances(g);
         assert!((l - 0.087).abs() < 1e-6 && (r - 0.113).abs() < 1e-6);
+        let right = Move {
+            kind: MoveKind::Arc {
+                radius_m: 0.1,
+                angle_rad: -1.0,
+            },
+            ..a
+        };
+        let (l, r) = right.wheel_distances(g);
+        assert!(
+            (l - 0.113).abs() < 1e-6 && (r - 0.087).abs() < 1e-6,
+            "a right turn drives forward with the left wheel outside: {l} {r}"
+        );
     }
 
     #[test]

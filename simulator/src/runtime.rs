@@ -47,6 +47,8 @@ pub struct Truth {
     pub obstacle_displacements_m: Vec<f64>,
     /// Robot–robot contacts so far.
     pub robot_collisions: usize,
+    /// Each robot–robot contact: when it began (simulated seconds) and the two robot ids.
+    pub collision_log: Vec<(f64, u16, u16)>,
     /// Robot–wall contacts so far.
     pub wall_contacts: usize,
 }
@@ -175,6 +177,16 @@ pub fn truth(sim: &Simulation) -> Truth {
         obstacles: sim.obstacle_poses(),
         obstacle_displacements_m: sim.obstacle_displacements(),
         robot_collisions: sim.robot_collisions(),
+        collision_log: sim
+            .contacts()
+            .iter()
+            .filter_map(|c| match c.kind {
+                ContactKind::RobotRobot(a, b) => {
+                    Some((c.at_s, sim.robots()[a].id(), sim.robots()[b].id()))
+                }
+                _ => None,
+            })
+            .collect(),
         wall_contacts: sim
             .contacts()
             .iter()

@@ -20,14 +20,15 @@ pub const GRID_MAX_SIDE: usize = 400;
 const PRESETS: &[(&str, &str)] = &[
     ("oval", include_str!("../../worlds/oval.toml")),
     ("push", include_str!("../../worlds/push.toml")),
+    ("ring", include_str!("../../worlds/ring.toml")),
     ("junction", include_str!("../../worlds/junction.toml")),
     ("grid", include_str!("../../worlds/grid.toml")),
     ("open", include_str!("../../worlds/open.toml")),
 ];
 
-/// Names accepted by [`preset`]: `oval`, `push`, `junction`, `grid`, `open`.
+/// Names accepted by [`preset`]: `oval`, `push`, `ring`, `junction`, `grid`, `open`.
 pub fn preset_names() -> &'static [&'static str] {
-    &["oval", "push", "junction", "grid", "open"]
+    &["oval", "push", "ring", "junction", "grid", "open"]
 }
 
 /// The TOML text of preset `name`, to show or to copy as a starting point.

@@ -765,6 +765,24 @@ impl Track {
         best
     }
 
+    /// The point of edge `edge` nearest to `p` (like [`nearest`](Self::nearest), restricted to
+    /// one edge), for following a chosen edge where several meet.
+    ///
+    /// # Panics
+    /// If `edge` is not an index into [`edges`](Self::edges), like slice indexing.
+    pub fn nearest_on(&self, edge: usize, p: Point2<f64>) -> TrackPoint {
+        let e = &self.edges[edge];
+        let (offset_m, distance_m, point) = e.shape.closest(p);
+        let (_, tangent) = e.shape.point_at(offset_m);
+        TrackPoint {
+            edge,
+            offset_m,
+            distance_m,
+            point,
+            tangent,
+        }
+    }
+
     /// Length of edge `edge`'s centre line in metres.
     ///
     /// # Panics
