@@ -107,7 +107,7 @@ pub struct Observer {
 }
 
 impl Observer {
-    /// An observer; robots are added with [`Observer::watch`] as they start.
+    /// An observer whose times count from `t0`; each robot actor subscribes it as it starts.
     pub fn new(setup: ObserverSetup, t0: Instant) -> Self {
         let model = WorldModel::new(Arc::clone(&setup.track));
         let track_lines = track_lines(&setup.track);
@@ -125,11 +125,6 @@ impl Observer {
             t0,
             truth_pending: false,
         }
-    }
-
-    /// The track as polylines, one per edge.
-    pub fn track_lines(&self) -> &[Vec<[f64; 2]>] {
-        &self.track_lines
     }
 
     fn t(&self) -> f64 {
@@ -241,6 +236,24 @@ impl Observer {
                     "font_size": 14.0, "scale_invariant": true, "color": colour, "text": format!("robot {}", v.id)}],
                 "lines": [],
             }));
+        }
+        // Every primitive list present, empty or not, as Foxglove's SceneEntity has them all.
+        for e in &mut entities {
+            if let Value::Object(m) = e {
+                for key in [
+                    "metadata",
+                    "arrows",
+                    "cubes",
+                    "spheres",
+                    "cylinders",
+                    "lines",
+                    "triangles",
+                    "texts",
+                    "models",
+                ] {
+                    m.entry(key).or_insert_with(|| json!([]));
+                }
+            }
         }
         json!({"deletions": [], "entities": entities})
     }

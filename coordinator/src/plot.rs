@@ -28,7 +28,7 @@ pub fn trajectories_svg(
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         let mut chart = ChartBuilder::on(&root)
             .caption(
-                format!("trajectories on {}", world.name),
+                format!("{}: world model (solid), ground truth (dashed)", world.name),
                 ("sans-serif", 18),
             )
             .margin(10)

@@ -438,6 +438,18 @@ fn panel_drives_robots_in_headless_chromium() {
         let kp = cdp.eval("pf.settings['line_pid.kp']").await.as_f64().unwrap();
         assert!((kp - 1.7).abs() < 1e-6, "{status}: {kp}");
 
+        // The PID view switches the robot to reduced state at a high rate: over 50 samples a
+        // second reach the chart (the full state comes at 20 a second).
+        cdp.eval("document.getElementById('pid-toggle').click(); pf.send({cmd:'wheels', robot:1, left:0.05, right:0.05}); 0").await;
+        cdp.until(
+            "(() => { const s = pf.samples; if (s.length < 2) return 0; const t1 = s[s.length - 1][0]; return s.filter(x => x[0] > t1 - 1).length; })()",
+            20,
+            "reduced state at a high rate in the PID chart",
+            |v| v.as_f64().is_some_and(|n| n > 50.0),
+        )
+        .await;
+        cdp.eval("pf.send({cmd:'wheels', robot:1, left:0, right:0}); document.getElementById('pid-toggle').click(); 0").await;
+
         // Both robots on a long move, then the e-stop stops them all.
         cdp.eval("pf.send({cmd:'straight', robot:1, distance:0.3, speed:0.1}); pf.send({cmd:'straight', robot:2, distance:0.3, speed:0.1}); 0").await;
         cdp.until(
@@ -497,5 +509,50 @@ fn panel_drives_robots_in_headless_chromium() {
         if let Some(path) = std::env::var_os("POCKETFLEET_PHONE_SCREENSHOT") {
             cdp.screenshot(Path::new(&path)).await;
         }
+    });
+}
+
+#[test]
+fn the_panel_follows_a_replay() {
+    let path = std::env::temp_dir().join(format!("pocketfleet-panel-{}.mcap", std::process::id()));
+    let status = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args(["--behaviour", "square_walk", "--robots", "2", "--record"])
+        .arg(&path)
+        .stdout(Stdio::null())
+        .status()
+        .expect("coordinator runs");
+    assert!(status.success());
+    let c = coordinator(&["replay", path.to_str().unwrap(), "--panel", "127.0.0.1:0"]);
+    let url = c.url.replace("http://", "ws://") + "ws";
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async move {
+        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
+            .await
+            .unwrap();
+        let mut hello = None;
+        let mut poses = Vec::new();
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while poses.len() < 20 {
+            assert!(Instant::now() < deadline, "too few replayed frames");
+            let Some(Ok(Message::Text(t))) = ws.next().await else {
+                panic!("panel closed")
+            };
+            let v: Value = serde_json::from_str(&t).unwrap();
+            match v["type"].as_str() {
+                Some("hello") => hello = Some(v),
+                Some("world") => poses.push(v["robots"][0]["pose"].clone()),
+                _ => {}
+            }
+        }
+        let hello = hello.expect("hello first");
+        assert_eq!(hello["scene"]["replay"], json!(true));
+        assert_eq!(hello["scene"]["robots"], json!([1, 2]));
+        assert!(
+            poses.windows(2).any(|w| w[0] != w[1]),
+            "the replayed robot moves"
+        );
     });
 }

@@ -28,7 +28,8 @@ struct Args {
     /// Number of simulated robots, or a comma-separated list of robot addresses.
     #[arg(long)]
     robots: Option<String>,
-    /// A world preset or world file (default: the behaviour's own).
+    /// A world preset, a world file, or a generated lattice `grid:COLSxROWS:ROBOTS` (default: the
+    /// behaviour's own).
     #[arg(long)]
     world: Option<String>,
     /// Where the robots are.
@@ -188,7 +189,8 @@ fn main() -> ExitCode {
 fn run(args: &Args, registry: &Registry) -> Result<bool> {
     let plan = plan(args)?;
     let simulated = plan.transport == Transport::Sim;
-    let world = plan_world(&plan, registry)?;
+    // Loaded again for the plot only, after the run has checked the plan.
+    let plot = args.plot.as_ref().map(|path| (path.clone(), plan.clone()));
     let instruments = Instruments {
         record: args.record.clone(),
         panel: args.panel.map(|addr| PanelOptions { addr, linger: true }),
@@ -203,7 +205,7 @@ fn run(args: &Args, registry: &Registry) -> Result<bool> {
         std::fs::write(path, report.to_json())
             .with_context(|| format!("writing {}", path.display()))?;
     }
-    finish(&run, &world, args.plot.as_deref())?;
+    finish(&run, registry, plot)?;
     Ok(report.verdict.success)
 }
 
@@ -221,8 +223,8 @@ fn plan_world(plan: &Plan, registry: &Registry) -> Result<simulator::world::Worl
 
 fn finish(
     run: &coordinator::Run,
-    world: &simulator::world::World,
-    plot: Option<&std::path::Path>,
+    registry: &Registry,
+    plot: Option<(PathBuf, Plan)>,
 ) -> Result<()> {
     if let Some((path, stats)) = &run.recording {
         println!(
@@ -233,10 +235,11 @@ fn finish(
             stats.bytes
         );
     }
-    if let Some(path) = plot {
+    if let Some((path, plan)) = plot {
+        let world = plan_world(&plan, registry)?;
         coordinator::plot::write_trajectories(
-            path,
-            world,
+            &path,
+            &world,
             &run.observed.trails,
             &run.observed.truth_trails,
         )?;
@@ -267,7 +270,7 @@ fn replay(
         params: info.params.clone(),
         faults: Vec::new(),
     };
-    let world = plan_world(&plan, registry)?;
+    let plot = plot.map(|p| (p.to_path_buf(), plan.clone()));
     let instruments = Instruments {
         record: None,
         panel: panel.map(|addr| PanelOptions { addr, linger: true }),
@@ -280,6 +283,6 @@ fn replay(
         .clone()
         .context("the replay produced no comparison")?;
     println!("{check}");
-    finish(&run, &world, plot)?;
+    finish(&run, registry, plot)?;
     Ok(check.exact())
 }
