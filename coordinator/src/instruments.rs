@@ -49,6 +49,7 @@ pub(crate) struct Hooks {
     t0: Instant,
     feed: Option<broadcast::Sender<Arc<str>>>,
     panel: Option<PanelServer>,
+    links: Option<tokio::task::JoinHandle<()>>,
 }
 
 impl Hooks {
@@ -89,6 +90,7 @@ impl Hooks {
             t0,
             feed,
             panel: None,
+            links: None,
         })
     }
 
@@ -161,6 +163,7 @@ impl Hooks {
         .await?;
         eprintln!("coordinator: control panel at {}", server.url);
         self.panel = Some(server);
+        self.links = Some(tokio::spawn(link_stats(robots.to_vec(), feed.clone())));
         Ok(())
     }
 
@@ -171,7 +174,12 @@ impl Hooks {
     }
 
     pub(crate) async fn linger(&self, verdict: &Verdict) {
-        if self.panel.is_some() && self.instruments.panel.as_ref().is_some_and(|p| p.linger) {
+        // A run ended by Ctrl-C was asked to end: the panel goes with it.
+        let interrupted = verdict.summary.contains("Ctrl-C");
+        if self.panel.is_some()
+            && !interrupted
+            && self.instruments.panel.as_ref().is_some_and(|p| p.linger)
+        {
             eprintln!(
                 "coordinator: experiment over ({}); the panel stays up until Ctrl-C",
                 verdict.summary
@@ -181,6 +189,9 @@ impl Hooks {
     }
 
     pub(crate) async fn finish(self, report: Report, observer: &Addr<Observer>) -> Result<Run> {
+        if let Some(task) = &self.links {
+            task.abort();
+        }
         let observed = observer.send(TakeObserved).await.context("observer gone")?;
         let replay = self
             .replay
@@ -200,6 +211,32 @@ impl Hooks {
                 .as_ref()
                 .map(|r| (r.counts.clone(), r.truncated.clone())),
         })
+    }
+}
+
+/// The host's link statistics of every robot for the panel, twice a second.
+async fn link_stats(robots: Vec<(u16, Robot)>, feed: broadcast::Sender<Arc<str>>) {
+    let mut tick = tokio::time::interval(Duration::from_millis(500));
+    loop {
+        tick.tick().await;
+        let mut links = serde_json::Map::new();
+        for (id, robot) in &robots {
+            let Ok(s) = robot.snapshot().await else {
+                continue;
+            };
+            let l = s.link;
+            let ms = |d: Option<Duration>| d.map(|d| d.as_secs_f64() * 1e3);
+            links.insert(
+                id.to_string(),
+                json!({"in": l.packets_in, "out": l.packets_out, "checksum_errors": l.checksum_errors,
+                    "dropped": l.dropped_frames, "rtt_ms": ms(l.rtt), "rtt_mean_ms": ms(l.rtt_mean),
+                    "losses": l.losses, "reconnects": l.reconnects, "connected": s.connected}),
+            );
+        }
+        // No page open is fine.
+        let _ = feed.send(Arc::from(
+            json!({"type": "links", "links": links}).to_string(),
+        ));
     }
 }
 

@@ -450,6 +450,28 @@ fn panel_drives_robots_in_headless_chromium() {
         .await;
         cdp.eval("pf.send({cmd:'wheels', robot:1, left:0, right:0}); document.getElementById('pid-toggle').click(); 0").await;
 
+        // A move that would leave the arena is held by the supervisor's safety check.
+        cdp.eval("window.heldId = pf.send({cmd:'straight', robot:1, distance:2.0, speed:0.1}); 0")
+            .await;
+        let held = cdp
+            .until(
+                "(() => { const r = pf.replies.find(r => r.id === window.heldId); return r ? [r.ok, r.message] : null; })()",
+                10,
+                "the safety check's answer",
+                |v| v.is_array(),
+            )
+            .await;
+        assert_eq!(held[0], json!(false), "{held}");
+        assert!(
+            held[1].as_str().unwrap().contains("held by the safety check"),
+            "{held}"
+        );
+        // The host's link statistics reach the page.
+        cdp.until("pf.links['1'] ? pf.links['1'].in : 0", 10, "host link statistics", |v| {
+            v.as_f64().is_some_and(|n| n > 10.0)
+        })
+        .await;
+
         // Both robots on a long move, then the e-stop stops them all.
         cdp.eval("pf.send({cmd:'straight', robot:1, distance:0.3, speed:0.1}); pf.send({cmd:'straight', robot:2, distance:0.3, speed:0.1}); 0").await;
         cdp.until(
