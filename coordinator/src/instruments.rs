@@ -22,7 +22,7 @@ use crate::observer::{
     track_lines, BoxShape, Instruments, Observed, Observer, ObserverSetup, TakeObserved, BODY_M,
 };
 use crate::panel::{PanelContext, PanelServer};
-use crate::record::{RecordStats, Recorder, RunInfo, Tap};
+use crate::record::{RecordStats, Recorder, RunInfo, Tap, Topic};
 use crate::replay::{Recording, ReplayCheck};
 use crate::report::Report;
 use crate::supervisor::Supervisor;
@@ -198,7 +198,17 @@ impl Hooks {
             .as_ref()
             .map(|r| crate::replay::check(r, &observed.captured));
         let recording = match &self.recorder {
-            Some(rec) => Some((rec.path().to_path_buf(), rec.finish()?)),
+            Some(rec) => {
+                // The behaviour's own word on the run, and what the safety check held back.
+                let t = (Instant::now() - self.t0).as_secs_f64();
+                rec.json(
+                    Topic::Events,
+                    &json!({"t": t, "robot": 0, "kind": "verdict",
+                        "detail": report.verdict.summary, "success": report.verdict.success,
+                        "metrics": report.verdict.metrics, "held": report.held_intents}),
+                );
+                Some((rec.path().to_path_buf(), rec.finish()?))
+            }
             None => None,
         };
         Ok(Run {

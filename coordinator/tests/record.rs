@@ -94,6 +94,12 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     assert!(all
         .iter()
         .any(|(t, v)| t == "/packets" && v["dir"] == "tx" && v["type"] == "StraightMovement"));
+    let verdict = &all.iter().rev().find(|(t, _)| t == "/events").unwrap().1;
+    assert_eq!(verdict["kind"], "verdict");
+    assert_eq!(
+        verdict["success"],
+        serde_json::json!(recorded.report.verdict.success)
+    );
 
     // Replayed through fresh robot actors, the supervisor and the behaviour.
     let replayed = run(
