@@ -26,6 +26,8 @@ const STOP_GAP: f64 = 0.11;
 const GO_GAP: f64 = 0.15;
 /// The token passes only to the robot ahead within this distance along the track.
 const PASS_RANGE: f64 = 0.25;
+/// Any robot in front within this distance counts as ahead, whatever its bearing.
+const NEAR: f64 = 0.2;
 /// A robot off the tape counts as ahead within this half-angle of the heading.
 const AHEAD_CONE: f64 = 40.0 * PI / 180.0;
 /// Following speed with an unknown obstacle close ahead.
@@ -130,16 +132,22 @@ impl TokenRing {
             let d = match (mine, theirs) {
                 (Some(a), Some(b)) if self.direction > 0.0 => self.track.ahead(a, b),
                 (Some(a), Some(b)) => self.track.ahead(b, a),
-                _ => {
-                    let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
-                    let bearing = dy.atan2(dx) - me.pose.theta;
-                    if bearing.sin().atan2(bearing.cos()).abs() < AHEAD_CONE {
-                        dx.hypot(dy)
-                    } else {
-                        continue;
-                    }
-                }
+                _ => f64::INFINITY,
             };
+            // Off the tape (detouring) or close by, a robot in front counts by straight-line
+            // distance: anywhere in the front half within `NEAR`, within the cone farther out.
+            let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
+            let bearing = dy.atan2(dx) - me.pose.theta;
+            let off = bearing.sin().atan2(bearing.cos()).abs();
+            let straight = dx.hypot(dy);
+            let d = if (off < FRAC_PI_2 && straight < NEAR) || off < AHEAD_CONE {
+                d.min(straight)
+            } else {
+                d
+            };
+            if !d.is_finite() {
+                continue;
+            }
             if best.is_none_or(|(_, b)| d < b) {
                 best = Some((other.id, d));
             }
@@ -288,8 +296,15 @@ impl TokenRing {
             let level = view.state.proximity.front_obstacle;
             if level == 1 && gap > 0.15 {
                 out.extend(self.follow(id, None));
-                out.push(Intent::Stop { robot: id });
-                out.extend(self.detour(view));
+                // One detour at a time: the box's surroundings hold one robot off the tape.
+                let someone_detouring = self
+                    .bots
+                    .iter()
+                    .any(|(other, b)| *other != id && b.outstanding > 0);
+                if !someone_detouring {
+                    out.push(Intent::Stop { robot: id });
+                    out.extend(self.detour(view));
+                }
                 continue;
             }
             let current = self.bots.get(&id).and_then(|b| b.following);

@@ -76,6 +76,8 @@ struct Bot {
     /// The edge being driven.
     driving: Option<Leg>,
     tasks_done: u32,
+    /// A segment was held back by the safety check: plan it again.
+    retry: bool,
     rng: ChaCha8Rng,
     /// Has a task (false once its quota is done: it only keeps out of the way).
     active: bool,
@@ -94,6 +96,8 @@ pub struct TrafficControl {
     quota: Option<u32>,
     tasks: u32,
     replans: u32,
+    held: u32,
+    scripted: bool,
     plan_time_max: Duration,
     last_progress: Duration,
     started: Duration,
@@ -158,6 +162,7 @@ impl TrafficControl {
                 outstanding: 0,
                 driving: None,
                 tasks_done: 0,
+                retry: false,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
                 active: true,
             })
@@ -178,6 +183,8 @@ impl TrafficControl {
             quota,
             tasks: 0,
             replans: 0,
+            held: 0,
+            scripted: scripted.is_some(),
             plan_time_max: Duration::ZERO,
             last_progress: Duration::ZERO,
             started: Duration::ZERO,
@@ -361,6 +368,13 @@ impl TrafficControl {
     /// Goals for everyone at a goal, then a plan for the whole team from where it stands.
     fn replan(&mut self) -> Result<(), String> {
         for k in 0..self.bots.len() {
+            let b = &mut self.bots[k];
+            if b.active && b.goal == b.node && self.scripted {
+                // A scripted robot that starts on its goal has nothing to do but keep clear.
+                b.tasks_done += 1;
+                self.tasks += 1;
+                b.active = false;
+            }
             let b = &self.bots[k];
             let at_goal = b.goal == b.node || b.goal == u32::MAX;
             if at_goal && b.active {
@@ -452,6 +466,7 @@ impl TrafficControl {
                 f64::from(self.tasks) / minutes.max(1e-9),
             )
             .with("plans", f64::from(self.replans))
+            .with("held_segments", f64::from(self.held))
             .with("plan_time_max_ms", self.plan_time_max.as_secs_f64() * 1e3),
         );
         self.bots
@@ -480,6 +495,13 @@ impl TrafficControl {
                 self.tasks
             ));
         }
+        let mut out = Vec::new();
+        for k in 0..self.bots.len() {
+            if self.bots[k].retry && self.bots[k].outstanding == 0 {
+                self.bots[k].retry = false;
+                out.extend(self.drive(k, world));
+            }
+        }
         let all_still = self
             .bots
             .iter()
@@ -491,12 +513,19 @@ impl TrafficControl {
             _ => {}
         }
         if self.phase == Phase::Draining && all_still {
+            if self.tasks >= self.target_tasks {
+                return self.finish(world);
+            }
             if let Err(e) = self.replan() {
                 return self.fail(e);
             }
+            if self.tasks >= self.target_tasks {
+                return self.finish(world);
+            }
             self.phase = Phase::Running;
         }
-        self.dispatch(world)
+        out.extend(self.dispatch(world));
+        out
     }
 
     /// Robot `k` finished driving an action.
@@ -515,11 +544,12 @@ impl TrafficControl {
             if self.quota.is_some_and(|q| b.tasks_done >= q) {
                 b.active = false;
             }
-            if self.tasks >= self.target_tasks {
-                return self.finish(world);
+            // Every robot now finishes the edge it is on; then the team is planned again. With
+            // the last task done, the plan runs to its end first, so every robot stands on its
+            // final node when the experiment ends.
+            if self.tasks < self.target_tasks {
+                self.phase = Phase::Draining;
             }
-            // Every robot now finishes the edge it is on; then the team is planned again.
-            self.phase = Phase::Draining;
         }
         if self.adg.as_ref().is_some_and(|a| a.is_done()) {
             self.phase = Phase::Draining;
@@ -594,15 +624,20 @@ impl Behaviour for TrafficControl {
         }
     }
 
-    fn on_held(&mut self, intent: &Intent, reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
-        // The plan keeps robots apart by construction; a held move means the world model and
-        // the plan disagree, which must be seen rather than driven through.
-        match intent {
-            Intent::Move { robot, .. } => self.fail(format!(
-                "robot {robot}: the supervisor held back a planned move: {reason}"
-            )),
-            _ => Vec::new(),
+    fn on_held(&mut self, intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+        // The plan keeps robots apart by construction; a held segment means the world model saw
+        // a robot closer than the plan assumed (a pose error). The robot waits and the segment is
+        // planned again at the next snapshot; a lasting disagreement ends as a stall.
+        if let Intent::Move { robot, .. } = intent {
+            if let Some(bot) = self.bots.iter_mut().find(|b| b.id == *robot) {
+                bot.outstanding = bot.outstanding.saturating_sub(1);
+                if bot.outstanding == 0 && bot.driving.is_some() {
+                    bot.retry = true;
+                }
+            }
+            self.held += 1;
         }
+        Vec::new()
     }
 
     fn verdict(&self) -> Option<Verdict> {

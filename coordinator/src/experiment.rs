@@ -74,6 +74,17 @@ pub fn load_world(name: &str) -> Result<World> {
     if let Some(w) = presets::preset(name) {
         return Ok(w);
     }
+    if let Some(spec) = name.strip_prefix("grid:") {
+        // `grid:COLSxROWS:ROBOTS`, a generated warehouse lattice.
+        let parsed = spec.split_once(':').and_then(|(size, robots)| {
+            let (c, r) = size.split_once('x')?;
+            Some((c.parse().ok()?, r.parse().ok()?, robots.parse().ok()?))
+        });
+        let Some((cols, rows, robots)) = parsed else {
+            bail!("world {name:?}: expected grid:COLSxROWS:ROBOTS, e.g. grid:12x8:50");
+        };
+        return Ok(presets::grid(cols, rows, robots));
+    }
     if name.ends_with(".toml") || std::path::Path::new(name).exists() {
         return file::load(name).map_err(|e| anyhow!("{e}"));
     }

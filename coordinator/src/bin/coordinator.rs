@@ -42,7 +42,7 @@ struct Args {
     #[arg(long)]
     realtime: bool,
     /// Time limit in seconds (simulated time when simulating).
-    #[arg(long, default_value_t = 120.0)]
+    #[arg(long, default_value_t = 600.0)]
     duration: f64,
     /// Also write the report as JSON to this file.
     #[arg(long)]

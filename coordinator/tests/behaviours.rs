@@ -1,0 +1,149 @@
+//! The built-in behaviours run through the coordinator on simulated robots, headless and faster
+//! than real time, judged from the simulator's ground truth and not only by their own verdicts.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use behaviours::Registry;
+use coordinator::{Plan, Report, Transport};
+
+fn run(
+    behaviour: &str,
+    world: Option<&str>,
+    robots: Option<usize>,
+    seed: u64,
+    params: &[(&str, &str)],
+) -> Report {
+    let plan = Plan {
+        behaviour: behaviour.into(),
+        world: world.map(Into::into),
+        robots,
+        transport: Transport::Sim,
+        seed,
+        realtime: false,
+        duration: Duration::from_secs(600),
+        params: params
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect::<BTreeMap<_, _>>(),
+        faults: Vec::new(),
+    };
+    coordinator::actor_system(true)
+        .block_on(coordinator::run(plan, &Registry::builtin()))
+        .expect("experiment runs")
+}
+
+/// Length of the oval's tape loop.
+fn oval_m() -> f64 {
+    1.0 + 0.3 * std::f64::consts::PI
+}
+
+#[test]
+fn line_follow_laps_without_touching_for_seeds_1_to_10() {
+    for seed in 1..=10 {
+        let r = run("line_follow", None, None, seed, &[("laps", "2")]);
+        assert!(r.verdict.success, "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        for robot in &r.robots {
+            // Two laps of tape, give or take the sensor's lead.
+            assert!(
+                robot.distance_m.unwrap() > 2.0 * oval_m() - 0.05,
+                "seed {seed}: {r}"
+            );
+            assert!(
+                robot.off_tape_m.unwrap() < 0.008,
+                "seed {seed}: still on the tape: {r}"
+            );
+            // The world model, corrected by the tape, knows where the robot is.
+            assert!(robot.estimate_error_m().unwrap() < 0.02, "seed {seed}: {r}");
+        }
+    }
+}
+
+#[test]
+fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
+    for seed in 1..=10 {
+        let r = run("cooperative_push", None, None, seed, &[]);
+        assert!(r.verdict.success, "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        let [b] = r.obstacles.as_slice() else {
+            panic!("one box: {r}")
+        };
+        // Off the tape by more than a body length (48 mm).
+        assert!(b.clear_of_tape_m > 0.048, "seed {seed}: {r}");
+        for robot in &r.robots {
+            // Back on the tape, having lapped again after the push.
+            assert!(robot.off_tape_m.unwrap() < 0.008, "seed {seed}: {r}");
+            assert!(robot.distance_m.unwrap() > oval_m(), "seed {seed}: {r}");
+        }
+    }
+}
+
+#[test]
+fn one_robot_alone_never_clears_the_box() {
+    let r = run("cooperative_push", None, Some(1), 1, &[]);
+    assert!(!r.verdict.success, "{r}");
+    let [b] = r.obstacles.as_slice() else {
+        panic!("one box: {r}")
+    };
+    assert!(b.moved_m < 0.005, "{r}");
+    assert_eq!(b.clear_of_tape_m, 0.0, "{r}");
+}
+
+#[test]
+fn traffic_control_serves_tasks_on_the_grid_without_collisions() {
+    for seed in 1..=3 {
+        let r = run(
+            "traffic_control",
+            Some("grid"),
+            None,
+            seed,
+            &[("tasks", "40")],
+        );
+        assert!(r.verdict.success, "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
+        let tasks = r
+            .verdict
+            .metrics
+            .iter()
+            .find(|(k, _)| k == "tasks")
+            .map(|(_, v)| *v);
+        assert!(tasks.is_some_and(|t| t >= 40.0), "seed {seed}: {r}");
+    }
+}
+
+#[test]
+fn two_robots_swap_ends_of_the_single_lane_stem() {
+    // Robot 5 starts at T, the stem's lower end, and must reach Y at its top; robot 7 the other
+    // way. The six others keep their nodes and step aside only if in the way.
+    let r = run(
+        "traffic_control",
+        Some("junction"),
+        None,
+        1,
+        &[("goals", "C,M,S2,D,Y,A,T,U4")],
+    );
+    assert!(r.verdict.success, "{r}");
+    assert_eq!(r.robot_collisions, Some(0), "{r}");
+    let world = coordinator::load_world("junction").unwrap();
+    let node = |id: &str| {
+        let n = world.track.node_index(id).unwrap();
+        world.track.nodes()[n].position
+    };
+    for (robot, goal) in [(5, "Y"), (7, "T")] {
+        let t = r
+            .robots
+            .iter()
+            .find(|x| x.id == robot)
+            .unwrap()
+            .truth
+            .unwrap();
+        let d = (t.x - node(goal).x).hypot(t.y - node(goal).y);
+        assert!(
+            d < 0.02,
+            "robot {robot} ended {:.0} mm from {goal}: {r}",
+            d * 1e3
+        );
+    }
+}
