@@ -307,6 +307,10 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             }),
             distance_m: truth.as_ref().and_then(|t| t.distances_m.get(i).copied()),
             link: snap.link,
+            wheels_mps: (
+                f64::from(snap.state.wheels.left_mps),
+                f64::from(snap.state.wheels.right_mps),
+            ),
         });
     }
     hooks.linger(&outcome.verdict).await;

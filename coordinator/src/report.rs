@@ -27,6 +27,9 @@ pub struct RobotReport {
     pub distance_m: Option<f64>,
     /// Link statistics.
     pub link: LinkStats,
+    /// Measured wheel speeds (left, right) in the last state the robot reflected, m/s: zero
+    /// once the experiment has stopped it.
+    pub wheels_mps: (f64, f64),
 }
 
 impl RobotReport {
@@ -115,6 +118,7 @@ struct JsonRobot {
     estimate_heading_error_deg: Option<f64>,
     off_tape_mm: Option<f64>,
     distance_m: Option<f64>,
+    final_wheels_mps: [f64; 2],
     packets_in: u64,
     packets_out: u64,
     checksum_errors: u64,
@@ -173,6 +177,7 @@ impl Report {
                     estimate_heading_error_deg: r.estimate_heading_error_deg(),
                     off_tape_mm: r.off_tape_m.map(|e| e * 1e3),
                     distance_m: r.distance_m,
+                    final_wheels_mps: [r.wheels_mps.0, r.wheels_mps.1],
                     packets_in: r.link.packets_in,
                     packets_out: r.link.packets_out,
                     checksum_errors: r.link.checksum_errors,

@@ -163,3 +163,68 @@ fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
         closure * 1e3
     );
 }
+
+/// Ctrl-C (SIGINT) mid-experiment: every robot is stopped, the report is still printed and
+/// written, and the exit status says the experiment did not succeed.
+#[test]
+fn ctrl_c_stops_every_robot_reports_and_exits_non_zero() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let json = std::env::temp_dir().join(format!("pocketfleet-ctrlc-{}.json", std::process::id()));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args([
+            "--behaviour",
+            "line_follow",
+            "--realtime",
+            "--duration",
+            "120",
+        ])
+        .arg("--json-report")
+        .arg(&json)
+        .env("RUST_LOG", "coordinator::truth=debug")
+        .env("NO_COLOR", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("coordinator starts");
+    // The ground-truth log ticks once a simulated second; wait for the third tick, when both
+    // robots have been following the tape for a while.
+    let stderr = BufReader::new(child.stderr.take().expect("stderr"));
+    let mut ticks = 0;
+    let mut lines = stderr.lines();
+    for line in lines.by_ref() {
+        let line = line.expect("stderr line");
+        if line.contains("coordinator::truth") && line.contains("robot=2") {
+            ticks += 1;
+            if ticks == 3 {
+                break;
+            }
+        }
+    }
+    assert_eq!(ticks, 3, "the experiment runs");
+    // Drain the rest so the child never blocks on a full pipe.
+    std::thread::spawn(move || for _ in lines {});
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(kill.success());
+    let out = child.wait_with_output().expect("coordinator exits");
+    assert_eq!(out.status.code(), Some(1), "a failed experiment exits 1");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("interrupted (Ctrl-C)"), "{stdout}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("JSON report written"))
+            .expect("JSON report parses");
+    let _ = std::fs::remove_file(&json);
+    assert_eq!(report["success"], false);
+    for robot in report["robots"].as_array().expect("robots") {
+        assert!(
+            robot["distance_m"].as_f64().unwrap() > 0.05,
+            "it was moving: {robot}"
+        );
+        for w in robot["final_wheels_mps"].as_array().expect("wheels") {
+            assert!(w.as_f64().unwrap().abs() < 0.01, "stopped: {robot}");
+        }
+    }
+}
