@@ -31,8 +31,9 @@ const LATERAL_GAIN: f64 = 0.2;
 /// Share of the heading error taken per state update; lower than the lateral gain because the
 /// robot weaves about the tape while it follows it.
 const HEADING_GAIN: f64 = 0.05;
-/// `LineState::flags` bit: no spot sees the line.
+/// `LineState::flags` bits: no spot sees the line; line following is on.
 const LINE_LOST: u8 = 1;
+const LINE_FOLLOWING: u8 = 2;
 
 /// The rigid transform taking a robot's odometry pose to its corrected pose.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -153,7 +154,11 @@ impl WorldModel {
             .map(|c| *c)
             .unwrap_or_default();
         let mut pose = correction.apply(u.pose);
-        if u.state.line.flags & LINE_LOST == 0 {
+        // Only while the firmware follows the tape: then the tape is known to be the one the
+        // robot is on. A robot driving moves crosses and skirts tapes it is not on (at forks,
+        // sidings, crossings), and there a wrong match moved estimates by centimetres while its
+        // odometry alone stayed within millimetres.
+        if u.state.line.flags & LINE_LOST == 0 && u.state.line.flags & LINE_FOLLOWING != 0 {
             if let Some(better) = self.match_tape(pose, u.state.line.position_um) {
                 pose = better;
                 correction = Correction::between(u.pose, pose);
@@ -303,6 +308,7 @@ mod tests {
             let near = track.nearest(sensor).unwrap();
             let mut state = protocol::RobotState::default();
             state.line.position_um = ((near.point - sensor).dot(&right) * 1e6) as i16;
+            state.line.flags = LINE_FOLLOWING;
             model.apply(&StateUpdated {
                 robot_id: 1,
                 at: tokio::time::Instant::now(),
