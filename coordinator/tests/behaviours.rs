@@ -21,7 +21,7 @@ fn run(
         transport: Transport::Sim,
         seed,
         realtime: false,
-        duration: Duration::from_secs(600),
+        duration: Duration::from_secs(3000),
         params: params
             .iter()
             .map(|(k, v)| (k.to_string(), v.to_string()))
@@ -145,5 +145,24 @@ fn two_robots_swap_ends_of_the_single_lane_stem() {
             "robot {robot} ended {:.0} mm from {goal}: {r}",
             d * 1e3
         );
+    }
+}
+
+#[test]
+fn traffic_control_does_100_tasks_with_8_robots_on_junction_and_50_on_a_grid() {
+    for (world, robots) in [("junction", 8), ("grid:12x8:50", 50)] {
+        let r = run("traffic_control", Some(world), None, 1, &[("tasks", "100")]);
+        assert_eq!(r.robots.len(), robots);
+        // No deadlock: the behaviour fails on 30 s without any robot finishing an edge.
+        assert!(r.verdict.success, "{world}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "{world}: {r}");
+        assert_eq!(r.wall_contacts, Some(0), "{world}: {r}");
+        let tasks = r
+            .verdict
+            .metrics
+            .iter()
+            .find(|(k, _)| k == "tasks")
+            .map(|(_, v)| *v);
+        assert!(tasks.is_some_and(|t| t >= 100.0), "{world}: {r}");
     }
 }
