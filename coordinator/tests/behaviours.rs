@@ -91,8 +91,8 @@ fn one_robot_alone_never_clears_the_box() {
 }
 
 #[test]
-fn traffic_control_serves_tasks_on_the_grid_without_collisions() {
-    for seed in 1..=3 {
+fn traffic_control_serves_tasks_on_the_grid_without_collisions_for_seeds_1_to_10() {
+    for seed in 1..=10 {
         let r = run(
             "traffic_control",
             Some("grid"),
