@@ -38,6 +38,8 @@ const MANOEUVRE_MPS: f32 = 0.08;
 /// short of a 40 mm box to clear of it with the robot's length and a margin).
 const DETOUR_SIDE: f64 = 0.05;
 const DETOUR_ALONG: f64 = 0.125;
+/// No other robot may be this close to where a detour rejoins the tape when it starts.
+const REJOIN_CLEAR: f64 = 0.15;
 /// Robots start this long after one another.
 const START_STAGGER: Duration = Duration::from_secs(1);
 /// Nothing may take longer than this without a token pass.
@@ -47,8 +49,10 @@ const PASS_LIMIT: Duration = Duration::from_secs(90);
 struct Bot {
     /// Speed last sent; `None` when not following.
     following: Option<f32>,
-    /// Moves sent and not yet finished (a detour or a turn).
+    /// Moves sent and not yet finished (at most one: moves go one at a time).
     outstanding: usize,
+    /// Moves of a detour or a turn not yet sent; a held one goes back to the front.
+    queue: std::collections::VecDeque<robot_actor::MoveCommand>,
     aborted: bool,
     started: bool,
 }
@@ -164,16 +168,31 @@ impl TokenRing {
         Some(Intent::FollowLine { robot: id, speed })
     }
 
+    /// Queues a manoeuvre; its moves go out one at a time, so a move the safety check holds is
+    /// simply tried again later instead of leaving the robot halfway.
     fn send(&mut self, id: u16, route: Route) -> Vec<Intent> {
         if let Some(bot) = self.bots.get_mut(&id) {
-            bot.outstanding += route.moves.len();
+            bot.queue.extend(route.moves);
             bot.following = None;
         }
-        route
-            .moves
-            .into_iter()
-            .map(|command| Intent::Move { robot: id, command })
-            .collect()
+        self.pump(id).into_iter().collect()
+    }
+
+    /// The robot's next queued move, if none is running.
+    fn pump(&mut self, id: u16) -> Option<Intent> {
+        let bot = self.bots.get_mut(&id)?;
+        if bot.outstanding > 0 {
+            return None;
+        }
+        let command = bot.queue.pop_front()?;
+        bot.outstanding = 1;
+        Some(Intent::Move { robot: id, command })
+    }
+
+    fn busy(&self, id: u16) -> bool {
+        self.bots
+            .get(&id)
+            .is_some_and(|b| b.outstanding > 0 || !b.queue.is_empty())
     }
 
     fn leds(&self) -> Vec<Intent> {
@@ -252,7 +271,7 @@ impl TokenRing {
             return self.fail(format!("robot {id}: a manoeuvre was aborted"));
         }
         if self.turning {
-            if self.bots.values().all(|b| b.outstanding == 0) {
+            if self.order.iter().all(|id| !self.busy(*id)) {
                 self.turning = false;
                 self.direction = -self.direction;
                 self.reversals += 1;
@@ -261,7 +280,7 @@ impl TokenRing {
             }
         }
         // Turn the whole team round once the token has been round, when nobody is mid-detour.
-        if self.passes >= self.reverse_at && self.bots.values().all(|b| b.outstanding == 0) {
+        if self.passes >= self.reverse_at && self.order.iter().all(|id| !self.busy(*id)) {
             self.reverse_at += self.order.len() as u32;
             self.turning = true;
             for id in self.order.clone() {
@@ -283,6 +302,11 @@ impl TokenRing {
             if bot.outstanding > 0 {
                 continue;
             }
+            if !bot.queue.is_empty() {
+                // A held move: try it again.
+                out.extend(self.pump(id));
+                continue;
+            }
             if !bot.started {
                 if world.time < START_STAGGER * k as u32 {
                     continue;
@@ -297,11 +321,16 @@ impl TokenRing {
             if level == 1 && gap > 0.15 {
                 out.extend(self.follow(id, None));
                 // One detour at a time: the box's surroundings hold one robot off the tape.
-                let someone_detouring = self
-                    .bots
+                let someone_detouring = self.order.iter().any(|o| *o != id && self.busy(*o));
+                // The tape past the box, where the detour comes back, must be free.
+                let (s, c) = view.pose.theta.sin_cos();
+                let rejoin = (view.pose.x + 0.12 * c, view.pose.y + 0.12 * s);
+                let rejoin_clear = world
+                    .robots
                     .iter()
-                    .any(|(other, b)| *other != id && b.outstanding > 0);
-                if !someone_detouring {
+                    .filter(|r| r.id != id)
+                    .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
+                if !someone_detouring && rejoin_clear {
                     out.push(Intent::Stop { robot: id });
                     out.extend(self.detour(view));
                 }
@@ -391,7 +420,7 @@ impl Behaviour for TokenRing {
                         bot.aborted = true;
                     }
                 }
-                Vec::new()
+                self.pump(robot).into_iter().collect()
             }
             RobotEventKind::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
@@ -399,10 +428,12 @@ impl Behaviour for TokenRing {
     }
 
     fn on_held(&mut self, intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
-        // A held move never runs; once none is left the robot is re-planned from where it is.
-        if let Intent::Move { robot, .. } = intent {
+        // A held move never ran: it goes back to the front of the robot's queue and is tried
+        // again at the next snapshot.
+        if let Intent::Move { robot, command } = intent {
             if let Some(bot) = self.bots.get_mut(robot) {
                 bot.outstanding = bot.outstanding.saturating_sub(1);
+                bot.queue.push_front(*command);
             }
         }
         Vec::new()
