@@ -493,10 +493,10 @@ impl CooperativePush {
                 }
                 if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
                     let mut v = Verdict::success(format!(
-                        "box pushed {:.0} mm off the track by {} robots; the team lapped {} times \
-                         since without finding it",
-                        self.push_m * 1e3,
+                        "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
+                         the team has lapped {} more time(s) without finding it on the track",
                         self.bots.len(),
+                        self.push_m * 1e3,
                         self.laps
                     ))
                     .with("pushes", f64::from(self.pushes));
