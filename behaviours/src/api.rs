@@ -209,6 +209,31 @@ pub struct BehaviourConfig {
 }
 
 impl BehaviourConfig {
+    /// Parameter `key` parsed as `T` and checked against `range`, or `default` when absent.
+    ///
+    /// # Errors
+    /// A present value that does not parse or lies outside `range`, naming the key.
+    pub fn param_in<T>(
+        &self,
+        key: &str,
+        default: T,
+        range: std::ops::RangeInclusive<T>,
+    ) -> Result<T, String>
+    where
+        T: std::str::FromStr + PartialOrd + std::fmt::Display,
+    {
+        let v = self.param(key, default)?;
+        if range.contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!(
+                "parameter {key}={v}: expected {} to {}",
+                range.start(),
+                range.end()
+            ))
+        }
+    }
+
     /// Parameter `key` parsed as `T`, or `default` when absent.
     ///
     /// # Errors

@@ -132,30 +132,19 @@ pub struct CooperativePush {
 }
 
 impl CooperativePush {
-    /// Builds it. Parameters: `speed` (following, m/s, default 0.1), `push` (how far the pushers drive
-    /// into the box, m, default 0.15: their wheels slip under the load, so the box moves less), `box` (box width across the push, m, default 0.04), `laps` (laps
-    /// after the push, default 1).
+    /// Builds it. Parameters: `speed` (following, m/s, default 0.1), `push` (how far the pushers
+    /// drive into the box, m, default 0.15: their wheels slip under the load, so the box moves
+    /// less), `box` (box width across the push, m, default 0.04), `laps` (laps after the push,
+    /// default 1).
     ///
     /// # Errors
     /// A track that is not one closed loop, or a parameter out of range.
     pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f32 = cfg.param("speed", 0.1)?;
-        let push_m: f64 = cfg.param("push", 0.15)?;
-        let box_m: f64 = cfg.param("box", 0.04)?;
-        let laps: f64 = cfg.param("laps", 1.0)?;
-        if !(0.04..=0.3).contains(&speed) {
-            return Err(format!("speed={speed}: expected 0.04 to 0.3 m/s"));
-        }
-        if !(0.02..=0.3).contains(&push_m) {
-            return Err(format!("push={push_m}: expected 0.02 to 0.3 m"));
-        }
-        if !(0.01..=0.1).contains(&box_m) {
-            return Err(format!("box={box_m}: expected 0.01 to 0.1 m"));
-        }
-        if !(laps > 0.0 && laps <= 20.0) {
-            return Err(format!("laps={laps}: expected 0 < laps <= 20"));
-        }
+        let speed: f32 = cfg.param_in("speed", 0.1, 0.04..=0.3)?;
+        let push_m: f64 = cfg.param_in("push", 0.15, 0.02..=0.3)?;
+        let box_m: f64 = cfg.param_in("box", 0.04, 0.01..=0.1)?;
+        let laps: f64 = cfg.param_in("laps", 1.0, 0.01..=20.0)?;
         if cfg.robots.is_empty() {
             return Err("needs at least one robot".into());
         }
@@ -482,10 +471,7 @@ impl CooperativePush {
                     };
                     let s = view.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
                     if let (Some(before), Some(after)) = (bot.last_s, s) {
-                        let d = (after - before).rem_euclid(length);
-                        if d < 0.5 * length {
-                            bot.lapped_m += d;
-                        }
+                        bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
                     }
                     if s.is_some() {
                         bot.last_s = s;

@@ -62,27 +62,10 @@ impl LineFollow {
     /// A track that is not one closed loop, or a parameter out of range.
     pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f64 = cfg.param("speed", 0.15)?;
-        let laps: f64 = cfg.param("laps", 3.0)?;
-        let spacing_m: f64 = cfg.param("spacing", 0.18)?;
-        let spread: f64 = cfg.param("spread", 0.25)?;
-        if !(MIN_SPEED_MPS..=0.5).contains(&speed) {
-            return Err(format!(
-                "speed={speed}: expected {MIN_SPEED_MPS} to 0.5 m/s"
-            ));
-        }
-        if !(laps > 0.0 && laps <= 100.0) {
-            return Err(format!("laps={laps}: expected 0 < laps <= 100"));
-        }
-        if !(spacing_m > STOP_GAP_M + 0.01 && spacing_m < 1.0) {
-            return Err(format!(
-                "spacing={spacing_m}: expected {} to 1 m",
-                STOP_GAP_M + 0.01
-            ));
-        }
-        if !(0.0..0.8).contains(&spread) {
-            return Err(format!("spread={spread}: expected 0 to 0.8"));
-        }
+        let speed: f64 = cfg.param_in("speed", 0.15, MIN_SPEED_MPS..=0.5)?;
+        let laps: f64 = cfg.param_in("laps", 3.0, 0.01..=100.0)?;
+        let spacing_m: f64 = cfg.param_in("spacing", 0.18, STOP_GAP_M + 0.01..=1.0)?;
+        let spread: f64 = cfg.param_in("spread", 0.25, 0.0..=0.8)?;
         let n = cfg.robots.len().max(2) - 1;
         let followers = cfg
             .robots
@@ -183,12 +166,7 @@ impl Behaviour for LineFollow {
                 continue;
             };
             if let (Some(before), Some(after)) = (f.last_s, s) {
-                let d = (after - before).rem_euclid(length);
-                // Forward only: a follower never backs up, and a jump of more than half the
-                // loop is a mismatch, not progress.
-                if d < 0.5 * length {
-                    f.progress_m += d;
-                }
+                f.progress_m += self.track.forward(before, after).unwrap_or(0.0);
             }
             if s.is_some() {
                 f.last_s = s;

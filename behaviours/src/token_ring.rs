@@ -87,15 +87,9 @@ impl TokenRing {
     /// Fewer than two robots, a track that is not one closed loop, or a parameter out of range.
     pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f32 = cfg.param("speed", 0.12)?;
-        let rounds: u32 = cfg.param("rounds", 3)?;
+        let speed: f32 = cfg.param_in("speed", 0.12, 0.08..=0.3)?;
+        let rounds: u32 = cfg.param_in("rounds", 3, 1..=50)?;
         let reverse: bool = cfg.param("reverse", true)?;
-        if !(0.08..=0.3).contains(&speed) {
-            return Err(format!("speed={speed}: expected 0.08 to 0.3 m/s"));
-        }
-        if !(1..=50).contains(&rounds) {
-            return Err(format!("rounds={rounds}: expected 1 to 50"));
-        }
         if cfg.robots.len() < 2 {
             return Err("a token ring needs at least two robots".into());
         }

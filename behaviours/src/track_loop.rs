@@ -70,6 +70,13 @@ impl TrackLoop {
         (to - from).rem_euclid(self.length_m)
     }
 
+    /// Distance driven forwards from `before` to `after`; `None` for a step backwards or a jump
+    /// of half the loop or more, which is a mismatch rather than progress.
+    pub fn forward(&self, before: f64, after: f64) -> Option<f64> {
+        let d = self.ahead(before, after);
+        (d < 0.5 * self.length_m).then_some(d)
+    }
+
     /// Signed progress from `before` to `after` (the shorter way round), for lap counting.
     pub fn progress(&self, before: f64, after: f64) -> f64 {
         let d = self.ahead(before, after);
