@@ -551,20 +551,23 @@ impl<B: Board> Firmware<B> {
             right_mps: self.speed[1].speed(now, tick, timeout),
         };
         let (targets, pwm) = self.control(now, wheels, dt);
-        // A single-channel encoder cannot see direction: pulses count in the direction the wheel
-        // is meant to turn (its target's sign, or the duty's without a target), and a wheel
-        // reverses only from standstill, so its last pulses before stopping still count the old way.
-        let speeds = [wheels.left_mps, wheels.right_mps];
+        // A single-channel encoder cannot see direction: pulses count in the direction the motor
+        // drives the wheel, and that direction changes only from standstill (no edge for the
+        // speed meter's timeout). A duty against the counted direction while the wheel still
+        // turns is not applied: braking through zero would reverse the wheel unseen, its pulses
+        // would count the wrong way, and the speed loop would push it ever faster.
+        let moving = [
+            self.speed[0].moving(now, timeout),
+            self.speed[1].moving(now, timeout),
+        ];
         let mut duty = [pwm.0, pwm.1];
         for (k, d) in duty.iter_mut().enumerate() {
-            let intent = [targets.0, targets.1][k];
-            let intent = if intent != 0.0 { intent } else { *d };
-            if intent == 0.0 {
+            if d.abs() < 0.5 {
                 continue;
             }
-            let backwards = intent < 0.0;
+            let backwards = *d < 0.0;
             if backwards != self.speed[k].is_backwards() {
-                if speeds[k] != 0.0 {
+                if moving[k] {
                     *d = 0.0;
                 } else {
                     self.speed[k].set_backwards(backwards);

@@ -46,6 +46,12 @@ impl SpeedMeter {
         self.last_edge = Some(at);
     }
 
+    /// Whether an edge came within `timeout` of `now`. A wheel whose speed reads zero may still be
+    /// turning: the first edge after a pause starts a new period measurement.
+    pub fn moving(&self, now: Instant, timeout: Duration) -> bool {
+        self.last_edge.is_some_and(|last| now - last <= timeout)
+    }
+
     /// Whether pulses currently count backwards.
     pub fn is_backwards(&self) -> bool {
         self.backwards

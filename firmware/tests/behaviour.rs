@@ -389,3 +389,46 @@ fn stop_clears_the_queue_and_halts_the_motors() {
     assert_eq!(outcomes, vec![(1, stopped), (2, stopped)]);
     assert_eq!(r.fw.board().pwm, (0, 0));
 }
+
+#[test]
+fn encoder_counts_follow_the_wheels_through_bang_bang_steering() {
+    // Line following over a poorly seen mark swings the inner wheel between a slow forward and a
+    // small backward set-point every few tens of milliseconds. The single-channel encoders must
+    // still count each wheel's true travel: a wrong direction here becomes a phantom heading (it
+    // once counted a metre forwards as a metre backwards).
+    let tick = f64::from(tick_m(0.009, 40));
+    for (fast, on_ms, off_ms) in [
+        (0.06, 40, 60),
+        (0.03, 40, 60),
+        (0.03, 20, 50),
+        (0.03, 10, 100),
+    ] {
+        let mut r = robot();
+        for k in 0..60 {
+            let (left_mps, ms) = if k % 2 == 0 {
+                (fast, on_ms)
+            } else {
+                (-0.0075, off_ms)
+            };
+            r.send(WheelSpeeds {
+                left_mps,
+                right_mps: 0.06,
+            });
+            run_alive(&mut r, Duration::from_millis(ms), |_| false);
+        }
+        r.send(Stop {});
+        run_alive(&mut r, Duration::from_millis(300), |_| false);
+        let e = r.fw.state().encoders;
+        for (k, counted) in [e.left_ticks, e.right_ticks].into_iter().enumerate() {
+            let counted = f64::from(counted) * tick;
+            let travel = r.fw.board().wheels[k].travel_m;
+            assert!(
+                (counted - travel).abs() < 6.0 * tick,
+                "{fast} m/s for {on_ms} ms, -0.0075 m/s for {off_ms} ms: wheel {k} rolled {:.1} mm, \
+                 its encoder counted {:.1} mm",
+                travel * 1e3,
+                counted * 1e3
+            );
+        }
+    }
+}
