@@ -551,27 +551,50 @@ impl<B: Board> Firmware<B> {
             right_mps: self.speed[1].speed(now, tick, timeout),
         };
         let (targets, pwm) = self.control(now, wheels, dt);
-        // A single-channel encoder cannot see direction: pulses count in the direction the motor
-        // drives the wheel, and that direction changes only from standstill (no edge for the
-        // speed meter's timeout). A duty against the counted direction while the wheel still
-        // turns is not applied: braking through zero would reverse the wheel unseen, its pulses
-        // would count the wrong way, and the speed loop would push it ever faster.
-        let moving = [
-            self.speed[0].moving(now, timeout),
-            self.speed[1].moving(now, timeout),
-        ];
+        // A single-channel encoder cannot see direction: pulses count in the direction the wheel
+        // is meant to turn (its target's sign, or the duty's without a target), and that changes
+        // only from standstill. Moves wait for their wheels to read zero speed before reversing
+        // one, and count from there. The speed loops (line following, wheel speeds) are stricter:
+        // standstill is no edge for the meter's timeout (the first edge after a pause reads as
+        // zero speed while the wheel still turns); a target the meter cannot resolve leaves the
+        // wheel resting; and a duty against the counted direction brakes only towards a target
+        // the meter resolves. Otherwise braking carries the wheel through zero unseen, its pulses
+        // count the wrong way and the loop pushes it ever faster: steering hard over a colour
+        // mark once counted a metre forwards as a metre backwards.
+        let speed_loop = matches!(
+            self.drive,
+            Drive::LineFollow { .. } | Drive::WheelSpeeds { .. }
+        );
+        let slowest_seen = tick / timeout.as_secs_f32().max(1e-3);
+        let speeds = [wheels.left_mps, wheels.right_mps];
         let mut duty = [pwm.0, pwm.1];
         for (k, d) in duty.iter_mut().enumerate() {
-            if d.abs() < 0.5 {
+            let target = [targets.0, targets.1][k];
+            let target = if speed_loop && target.abs() < slowest_seen {
+                0.0
+            } else {
+                target
+            };
+            let intent = if target != 0.0 { target } else { *d };
+            if intent == 0.0 {
                 continue;
             }
-            let backwards = *d < 0.0;
+            let turning = if speed_loop {
+                self.speed[k].moving(now, timeout)
+            } else {
+                speeds[k] != 0.0
+            };
+            let backwards = intent < 0.0;
             if backwards != self.speed[k].is_backwards() {
-                if moving[k] {
+                if turning {
                     *d = 0.0;
                 } else {
                     self.speed[k].set_backwards(backwards);
                 }
+            }
+            let brakes = *d != 0.0 && (*d < 0.0) != self.speed[k].is_backwards();
+            if speed_loop && brakes && target.abs() < 2.0 * slowest_seen {
+                *d = 0.0;
             }
         }
         self.apply_pwm(duty[0], duty[1]);
@@ -651,9 +674,22 @@ impl<B: Board> Firmware<B> {
     ) -> (f32, f32) {
         let ff = self.settings.locomotion.pwm_per_mps;
         let gains = self.settings.wheel_pid;
-        let l = ff * target.0 + self.wheel_pid[0].update(&gains, target.0 - wheels.left_mps, dt);
-        let r = ff * target.1 + self.wheel_pid[1].update(&gains, target.1 - wheels.right_mps, dt);
-        (l, r)
+        let g = self.settings.geometry;
+        let timeout = Duration::from_micros(u64::from(self.settings.speed_meter.timeout_us));
+        let slowest_seen =
+            tick_m(g.wheel_diameter_m, g.ticks_per_rev) / timeout.as_secs_f32().max(1e-3);
+        let measured = [wheels.left_mps, wheels.right_mps];
+        let mut duty = [0.0; 2];
+        for (k, t) in [target.0, target.1].into_iter().enumerate() {
+            // A speed the meter cannot resolve cannot be held: the loop would only dither the
+            // wheel back and forth, and its pulses would count the wrong way. The wheel rests.
+            if t.abs() < slowest_seen {
+                self.wheel_pid[k].reset();
+            } else {
+                duty[k] = ff * t + self.wheel_pid[k].update(&gains, t - measured[k], dt);
+            }
+        }
+        (duty[0], duty[1])
     }
 
     /// Maps a duty request to the motor: dead-band compensation and limit.

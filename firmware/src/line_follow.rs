@@ -8,9 +8,12 @@ use protocol::settings::{LineFollowSettings, PidSettings};
 
 /// Share of the speed kept while the line is lost: slow enough to turn back onto it.
 const LOST_SPEED_FACTOR: f32 = 0.5;
-/// Fastest backwards set-point as a share of the forward speed: a wheel may brake and reverse a
-/// little to tighten a turn, but the robot must not spin in place off the line.
-const MAX_REVERSE_SHARE: f32 = 0.25;
+/// Slowest set-point: a wheel stops at most, it is never driven backwards. A single-channel
+/// encoder counts a reversing wheel's last coasting pulses the wrong way, and hard steering over
+/// a colour mark reversed the inner wheel several times a second: 14° of phantom heading in one
+/// second. Pivoting on a stopped wheel still turns on a 13 mm radius, far tighter than any
+/// curve of tape.
+const MIN_WHEEL_MPS: f32 = 0.0;
 
 /// Wheel-speed set-points for the wheel-speed PIDs.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -92,7 +95,7 @@ impl LineFollower {
 
         let error_m = f32::from(reading.position_um) * 1e-6;
         let u = finite_or_zero(self.pid.update(line_pid, error_m, dt));
-        let (lo, hi) = (-MAX_REVERSE_SHARE * v, v + libm::fabsf(u));
+        let (lo, hi) = (MIN_WHEEL_MPS, v + libm::fabsf(u));
         FollowOutput {
             left_mps: (v + u / 2.0).clamp(lo, hi),
             right_mps: (v - u / 2.0).clamp(lo, hi),
@@ -178,11 +181,11 @@ mod tests {
     }
 
     #[test]
-    fn line_follow_no_wheel_reverses_faster_than_a_quarter_of_the_speed() {
+    fn line_follow_never_drives_a_wheel_backwards() {
         let mut f = LineFollower::new();
         // Far right: the PID saturates at ±0.4 m/s difference, more than twice the speed.
         let o = step(&mut f, 0, &reading(10_000, false), Mark::Red);
-        assert!((o.right_mps + 0.025).abs() < 1e-6, "{o:?}");
+        assert_eq!(o.right_mps, 0.0, "{o:?}");
         assert!((o.left_mps - 0.3).abs() < 1e-6, "{o:?}");
     }
 
