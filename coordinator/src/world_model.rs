@@ -18,6 +18,20 @@ const ON_TRACK_M: f64 = 0.02;
 /// The tape the sensor sees is matched to the modelled tape only this close: farther, the pose
 /// estimate is too far off to know which tape it is.
 const MATCH_M: f64 = 0.012;
+/// While the firmware follows a tape that the estimate cannot be matched to, the match gates
+/// widen by this much per metre driven (the estimate's uncertainty grows with distance), up to
+/// the caps; a curve that slipped the odometry by 16° left a robot's estimate outside the fixed
+/// gates for good.
+const GATE_GROWTH_PER_M: f64 = 0.25;
+const MATCH_MAX_M: f64 = 0.04;
+const ALIGNED_MAX_RAD: f64 = 35.0 * PI / 180.0;
+/// A colour mark's ends are landmarks along the tape: when the colour under the sensor changes
+/// to or from a mark, the sensor is at an end of such a mark. The nearest end within this
+/// distance of the estimate is taken, and this share of the mismatch along the tape corrected.
+/// Nothing else measures where a robot is along a straight, and slips (a detour's turns, a
+/// stop against an obstacle) leave several centimetres there.
+const MARK_GATE_M: f64 = 0.1;
+const MARK_GAIN: f64 = 0.8;
 /// Heading and tape must agree this well (either direction) before the tape corrects the heading:
 /// a robot turning in place sweeps its sensor across tape it is not following.
 const ALIGNED_RAD: f64 = 20.0 * PI / 180.0;
@@ -31,6 +45,9 @@ const LATERAL_GAIN: f64 = 0.2;
 /// Share of the heading error taken per state update; lower than the lateral gain because the
 /// robot weaves about the tape while it follows it.
 const HEADING_GAIN: f64 = 0.05;
+/// On a curve a follower's heading differs from the tape's by how it cuts the curve (about 3°);
+/// only heading errors beyond this are corrected there.
+const CURVE_DEADBAND_RAD: f64 = 6.0 * PI / 180.0;
 /// `LineState::flags` bits: no spot sees the line; line following is on.
 const LINE_LOST: u8 = 1;
 const LINE_FOLLOWING: u8 = 2;
@@ -63,6 +80,16 @@ impl Correction {
             dtheta,
         }
     }
+}
+
+/// Per robot: the correction, and how far it has followed tape without a match.
+#[derive(Clone, Copy, Debug, Default)]
+struct Estimate {
+    correction: Correction,
+    last_odometry: Option<Pose>,
+    unmatched_m: f64,
+    /// Colour last seen under the sensor (`protocol::packets::Mark` as a byte).
+    last_mark: u8,
 }
 
 /// Every junction and the radius around it in which its tapes run too close together to be told
@@ -106,7 +133,7 @@ fn wrap(a: f64) -> f64 {
 #[derive(Clone)]
 pub struct WorldModel {
     robots: Arc<DashMap<u16, RobotView>>,
-    corrections: Arc<DashMap<u16, Correction>>,
+    estimates: Arc<DashMap<u16, Estimate>>,
     track: Arc<Track>,
     /// Nodes where three or more tapes meet, and how far around each the tapes are too close
     /// together for the sensor to tell them apart.
@@ -119,7 +146,7 @@ impl WorldModel {
         let junctions = junction_zones(&track);
         Self {
             robots: Arc::new(DashMap::new()),
-            corrections: Arc::new(DashMap::new()),
+            estimates: Arc::new(DashMap::new()),
             track,
             junctions: Arc::new(junctions),
         }
@@ -148,23 +175,43 @@ impl WorldModel {
 
     /// Takes one state update.
     pub fn apply(&self, u: &StateUpdated) {
-        let mut correction = self
-            .corrections
+        let mut estimate = self
+            .estimates
             .get(&u.robot_id)
-            .map(|c| *c)
+            .map(|e| *e)
             .unwrap_or_default();
-        let mut pose = correction.apply(u.pose);
+        let driven = estimate
+            .last_odometry
+            .map_or(0.0, |p| (u.pose.x - p.x).hypot(u.pose.y - p.y));
+        estimate.last_odometry = Some(u.pose);
+        let mut pose = estimate.correction.apply(u.pose);
         // Only while the firmware follows the tape: then the tape is known to be the one the
         // robot is on. A robot driving moves crosses and skirts tapes it is not on (at forks,
         // sidings, crossings), and there a wrong match moved estimates by centimetres while its
         // odometry alone stayed within millimetres.
         if u.state.line.flags & LINE_LOST == 0 && u.state.line.flags & LINE_FOLLOWING != 0 {
-            if let Some(better) = self.match_tape(pose, u.state.line.position_um) {
+            let widen = GATE_GROWTH_PER_M * estimate.unmatched_m;
+            let gate_m = (MATCH_M + widen).min(MATCH_MAX_M);
+            let gate_rad = (ALIGNED_RAD + widen / MATCH_MAX_M * ALIGNED_RAD).min(ALIGNED_MAX_RAD);
+            if let Some(better) = self.match_tape(pose, u.state.line.position_um, gate_m, gate_rad)
+            {
                 pose = better;
-                correction = Correction::between(u.pose, pose);
-                self.corrections.insert(u.robot_id, correction);
+                estimate.correction = Correction::between(u.pose, pose);
+                estimate.unmatched_m = 0.0;
+            } else {
+                estimate.unmatched_m += driven;
+            }
+            let mark = u.state.line.mark;
+            if mark != estimate.last_mark {
+                let colour = if mark != 0 { mark } else { estimate.last_mark };
+                if let Some(better) = self.at_mark_end(pose, colour) {
+                    pose = better;
+                    estimate.correction = Correction::between(u.pose, pose);
+                }
             }
         }
+        estimate.last_mark = u.state.line.mark;
+        self.estimates.insert(u.robot_id, estimate);
         let (s, c) = pose.theta.sin_cos();
         let sensor = Point2::new(pose.x + SENSOR_AHEAD_M * c, pose.y + SENSOR_AHEAD_M * s);
         // Only robots over tape are looked up: most of the floor is white.
@@ -192,14 +239,14 @@ impl WorldModel {
     /// The sensor measures where the tape is across the robot (`position_um`, positive to the
     /// right); the track says where that tape is. Along the tape nothing is measured, so only the
     /// lateral offset and the heading are corrected.
-    fn match_tape(&self, pose: Pose, position_um: i16) -> Option<Pose> {
+    fn match_tape(&self, pose: Pose, position_um: i16, gate_m: f64, gate_rad: f64) -> Option<Pose> {
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
         let centre = Point2::new(pose.x, pose.y);
         let sensor = centre + heading * SENSOR_AHEAD_M;
         let seen = sensor + right * (f64::from(position_um) * 1e-6);
         let at_seen = self.track.nearest(seen)?;
-        if at_seen.distance_m > MATCH_M
+        if at_seen.distance_m > gate_m
             || self
                 .junctions
                 .iter()
@@ -208,7 +255,7 @@ impl WorldModel {
             return None;
         }
         let along = at_seen.tangent.dot(&heading);
-        if along.abs() < ALIGNED_RAD.cos() {
+        if along.abs() < gate_rad.cos() {
             return None;
         }
         let at_centre = self.track.nearest(centre)?;
@@ -224,16 +271,49 @@ impl WorldModel {
         // here; odometry carries the heading through the curve.
         let straight = !self.track.edges()[at_centre.edge].is_arc()
             && !self.track.edges()[at_seen.edge].is_arc();
+        let tape_dir = at_centre.tangent * at_centre.tangent.dot(&heading).signum();
+        let err = wrap(tape_dir.y.atan2(tape_dir.x) - pose.theta);
         let dtheta = if straight {
-            let tape_dir = at_centre.tangent * at_centre.tangent.dot(&heading).signum();
-            HEADING_GAIN * wrap(tape_dir.y.atan2(tape_dir.x) - pose.theta)
+            HEADING_GAIN * err
         } else {
-            0.0
+            // Only the part beyond how a follower cuts a curve: a slip of the odometry on a curve
+            // (16° was seen on a colour mark) would otherwise carry the estimate off the tape.
+            HEADING_GAIN * (err - err.clamp(-CURVE_DEADBAND_RAD, CURVE_DEADBAND_RAD))
         };
         Some(Pose {
             x: pose.x + LATERAL_GAIN * lateral.x,
             y: pose.y + LATERAL_GAIN * lateral.y,
             theta: pose.theta + dtheta,
+        })
+    }
+
+    /// The pose moved along the tape so that the sensor sits on the nearest end of a mark of
+    /// `colour` (a `protocol::packets::Mark` byte), or `None` when no such end is near.
+    fn at_mark_end(&self, pose: Pose, colour: u8) -> Option<Pose> {
+        let wanted = match colour {
+            1 => simulator::world::Mark::Red,
+            2 => simulator::world::Mark::Blue,
+            _ => return None,
+        };
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let sensor = Point2::new(pose.x, pose.y) + heading * SENSOR_AHEAD_M;
+        let nodes = self.track.nodes();
+        let end = self
+            .track
+            .edges()
+            .iter()
+            .filter(|e| e.mark == Some(wanted))
+            .flat_map(|e| [nodes[e.from].position, nodes[e.to].position])
+            .map(|p| (p, (p - sensor).norm()))
+            .filter(|(_, d)| *d < MARK_GATE_M)
+            .min_by(|a, b| a.1.total_cmp(&b.1))?
+            .0;
+        let tangent = self.track.nearest(end)?.tangent;
+        let shift = tangent * (tangent.dot(&(end - sensor)) * MARK_GAIN);
+        Some(Pose {
+            x: pose.x + shift.x,
+            y: pose.y + shift.y,
+            theta: pose.theta,
         })
     }
 
