@@ -1,6 +1,7 @@
 //! Move sequences computed from poses: drive to a point, turn to a heading. Behaviours plan
 //! manoeuvres off the tape with these and hand them to the robots' own locomotion.
 
+use std::collections::VecDeque;
 use std::f64::consts::{PI, TAU};
 
 use robot_actor::{MoveCommand, Pose};
@@ -80,6 +81,153 @@ impl Route {
     }
 }
 
+/// A point closer than this counts as reached.
+const REACHED_M: f64 = 0.004;
+/// Once driven towards, a point closer than this is not worth another turn.
+const NEAR_M: f64 = 0.015;
+/// Headings within this of the wanted one need no turn: the wheels' encoders resolve about 1.6°
+/// of turn per pulse, and a turn much smaller than a few pulses overshoots.
+const ALIGNED_RAD: f64 = 5.0 * PI / 180.0;
+/// Turns smaller than this go slowly, so that the wheels' coast after the move is short.
+const SMALL_TURN_RAD: f64 = 20.0 * PI / 180.0;
+/// Speed of small turns, m/s at the wheels.
+const SMALL_TURN_MPS: f32 = 0.03;
+/// Turns, and drives, spent on one leg before it counts as done as far as it can be.
+const MAX_TURNS: u8 = 3;
+const MAX_DRIVES: u8 = 2;
+
+/// One leg of a manoeuvre planned in world coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Leg {
+    /// Straight by a signed distance from wherever the robot is.
+    Straight(f64),
+    /// Turn to face the point, then drive to it.
+    To {
+        /// Metres.
+        x: f64,
+        /// Metres.
+        y: f64,
+    },
+    /// Turn in place to a heading, radians.
+    Face(f64),
+}
+
+/// Legs driven closed-loop: each move is computed from the robot's pose once the previous one
+/// has finished and the robot has come to rest, so a turn that came out a few degrees off is
+/// corrected on the next leg instead of being carried through the rest of the manoeuvre (an
+/// open-loop detour around a box once ended 23 mm beside the tape, and the line follower then
+/// took the tape the wrong way).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Legs {
+    legs: VecDeque<Leg>,
+    turns: u8,
+    drives: u8,
+    /// What the last move was, for [`Legs::held`]: a turn (`true`) or a drive.
+    last_turn: bool,
+    speed_mps: f32,
+}
+
+impl Legs {
+    /// No legs; moves at `speed_mps`.
+    pub fn new(speed_mps: f32) -> Self {
+        Self {
+            speed_mps,
+            ..Self::default()
+        }
+    }
+
+    /// Appends a leg.
+    pub fn push(&mut self, leg: Leg) {
+        self.legs.push_back(leg);
+    }
+
+    /// Whether every leg is done.
+    pub fn is_empty(&self) -> bool {
+        self.legs.is_empty()
+    }
+
+    /// Drops every leg.
+    pub fn clear(&mut self) {
+        self.legs.clear();
+        self.turns = 0;
+        self.drives = 0;
+    }
+
+    /// The next move from `pose` (where the robot rests), or `None` once every leg is done.
+    pub fn next(&mut self, pose: Pose) -> Option<MoveCommand> {
+        loop {
+            let leg = *self.legs.front()?;
+            let err = match leg {
+                Leg::Straight(d) => {
+                    if self.drives > 0 {
+                        self.pop();
+                        continue;
+                    }
+                    return Some(self.drive(d));
+                }
+                Leg::To { x, y } => {
+                    let (dx, dy) = (x - pose.x, y - pose.y);
+                    let d = dx.hypot(dy);
+                    let err = wrap(dy.atan2(dx) - pose.theta);
+                    if d < REACHED_M || (self.drives > 0 && d < NEAR_M) || self.drives >= MAX_DRIVES
+                    {
+                        self.pop();
+                        continue;
+                    }
+                    if err.abs() <= ALIGNED_RAD || self.turns >= MAX_TURNS {
+                        return Some(self.drive(d * err.cos()));
+                    }
+                    err
+                }
+                Leg::Face(h) => {
+                    let err = wrap(h - pose.theta);
+                    if err.abs() <= ALIGNED_RAD || self.turns >= MAX_TURNS {
+                        self.pop();
+                        continue;
+                    }
+                    err
+                }
+            };
+            self.turns += 1;
+            self.last_turn = true;
+            let speed_mps = if err.abs() < SMALL_TURN_RAD {
+                SMALL_TURN_MPS.min(self.speed_mps)
+            } else {
+                self.speed_mps
+            };
+            return Some(MoveCommand::Rotate {
+                angle_deg: err.to_degrees() as f32,
+                speed_mps,
+            });
+        }
+    }
+
+    /// The last move from [`Legs::next`] never ran (the safety check held it): it does not
+    /// count.
+    pub fn held(&mut self) {
+        if self.last_turn {
+            self.turns = self.turns.saturating_sub(1);
+        } else {
+            self.drives = self.drives.saturating_sub(1);
+        }
+    }
+
+    fn drive(&mut self, d: f64) -> MoveCommand {
+        self.drives += 1;
+        self.last_turn = false;
+        MoveCommand::Straight {
+            distance_m: d as f32,
+            speed_mps: self.speed_mps,
+        }
+    }
+
+    fn pop(&mut self) {
+        self.legs.pop_front();
+        self.turns = 0;
+        self.drives = 0;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -110,5 +258,47 @@ mod tests {
             MoveCommand::Straight { distance_m, .. } if (distance_m + 0.2).abs() < 1e-6
         ));
         assert_eq!(wrap(3.0 * PI), PI);
+    }
+
+    /// Drives a command on an ideal unicycle whose turns come out `slip` short.
+    fn drive(p: &mut Pose, m: MoveCommand, slip: f64) {
+        match m {
+            MoveCommand::Straight { distance_m, .. } => {
+                p.x += f64::from(distance_m) * p.theta.cos();
+                p.y += f64::from(distance_m) * p.theta.sin();
+            }
+            MoveCommand::Rotate { angle_deg, .. } => {
+                p.theta += f64::from(angle_deg).to_radians() * (1.0 - slip);
+            }
+            _ => unreachable!("legs only drive and turn"),
+        }
+    }
+
+    #[test]
+    fn legs_correct_short_turns_on_the_way() {
+        let mut legs = Legs::new(0.08);
+        legs.push(Leg::Straight(-0.01));
+        legs.push(Leg::To { x: -0.01, y: -0.05 });
+        legs.push(Leg::To { x: 0.115, y: -0.05 });
+        legs.push(Leg::To { x: 0.115, y: 0.0 });
+        legs.push(Leg::Face(0.0));
+        let mut p = Pose {
+            x: 0.0,
+            y: 0.0,
+            theta: 0.0,
+        };
+        let mut moves = 0;
+        while let Some(m) = legs.next(p) {
+            // Every turn comes out 15 % short, as turns in place on a slippery floor do.
+            drive(&mut p, m, 0.15);
+            moves += 1;
+            assert!(moves < 30, "legs never end");
+        }
+        assert!((p.x - 0.115).hypot(p.y) < 0.006, "ended at {p:?}");
+        assert!(
+            wrap(p.theta).abs() < ALIGNED_RAD + 1e-9,
+            "heading {}",
+            p.theta
+        );
     }
 }

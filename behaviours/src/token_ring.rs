@@ -14,7 +14,7 @@ use protocol::packets::MoveOutcome;
 use robot_actor::RobotEventKind;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
-use crate::moves::Route;
+use crate::moves::{Leg, Legs};
 use crate::track_loop::TrackLoop;
 
 /// The carrier's LED, and everyone else's.
@@ -33,13 +33,24 @@ const AHEAD_CONE: f64 = 40.0 * PI / 180.0;
 /// Following speed with an unknown obstacle close ahead.
 const CREEP_MPS: f32 = 0.03;
 /// Manoeuvre speed (detours, turning round).
-const MANOEUVRE_MPS: f32 = 0.08;
+const MANOEUVRE_MPS: f32 = 0.05;
 /// Detour geometry: sideways offset from the tape, and the length driven beside it (from 7 mm
 /// short of a 40 mm box to clear of it with the robot's length and a margin).
 const DETOUR_SIDE: f64 = 0.05;
 const DETOUR_ALONG: f64 = 0.125;
 /// No other robot may be this close to where a detour rejoins the tape when it starts.
 const REJOIN_CLEAR: f64 = 0.15;
+/// How far the front receiver sees a reflection at each power level: half the default reach of
+/// the level (the light goes there and back).
+const REFLECT_REACH_M: [f64; 4] = [0.015, 0.03, 0.05, 0.075];
+/// Slack for the world model's error when asking whether a known body explains a reflection.
+const MODEL_SLACK_M: f64 = 0.03;
+/// Half a robot's length: from its centre to its front, where the emitter and receiver sit.
+const HALF_LEN: f64 = 0.024;
+/// A manoeuvre's next move waits until the wheels have read zero speed this long: a wheel
+/// creeping slower than the speed meter resolves reads zero for a moment, and a move planned
+/// from there is off by the rest of the creep (and a reversing wheel miscounts it).
+const SETTLE: Duration = Duration::from_millis(100);
 /// Robots start this long after one another.
 const START_STAGGER: Duration = Duration::from_secs(1);
 /// Nothing may take longer than this without a token pass.
@@ -51,8 +62,10 @@ struct Bot {
     following: Option<f32>,
     /// Moves sent and not yet finished (at most one: moves go one at a time).
     outstanding: usize,
-    /// Moves of a detour or a turn not yet sent; a held one goes back to the front.
-    queue: std::collections::VecDeque<robot_actor::MoveCommand>,
+    /// The detour or turn under way, driven closed-loop one move at a time.
+    legs: Legs,
+    /// Since when the robot's wheels have read zero speed, if they do.
+    still_since: Option<Duration>,
     aborted: bool,
     started: bool,
 }
@@ -61,6 +74,7 @@ struct Bot {
 #[derive(Clone, Debug)]
 pub struct TokenRing {
     track: TrackLoop,
+    tape: std::sync::Arc<simulator::world::Track>,
     speed: f32,
     rounds: u32,
     order: Vec<u16>,
@@ -96,6 +110,7 @@ impl TokenRing {
         let n = cfg.robots.len() as u32;
         Ok(Self {
             track,
+            tape: cfg.track.clone(),
             speed,
             rounds,
             order: cfg.robots.clone(),
@@ -153,6 +168,36 @@ impl TokenRing {
         best
     }
 
+    /// Whether a body the world model knows (another robot, an arena wall) can account for a
+    /// reflection the front receiver sees at power `level`. One that none can is an unknown
+    /// obstacle, however close the next robot along the tape is: a robot beside the box, or
+    /// just past it, must not make a follower drive into the box.
+    fn reflection_explained(&self, me: &RobotView, world: &WorldSnapshot, level: u8) -> bool {
+        let Some(reach) = REFLECT_REACH_M.get(usize::from(level).wrapping_sub(1)) else {
+            return true;
+        };
+        let reach = reach + MODEL_SLACK_M;
+        let (s, c) = me.pose.theta.sin_cos();
+        let front = (me.pose.x + HALF_LEN * c, me.pose.y + HALF_LEN * s);
+        let robot_there = world.robots.iter().filter(|o| o.id != me.id).any(|o| {
+            let (dx, dy) = (o.pose.x - front.0, o.pose.y - front.1);
+            dx * c + dy * s > -HALF_LEN && dx.hypot(dy) - HALF_LEN < reach
+        });
+        // Distance along the heading from the front to the arena's walls.
+        let (w, h) = world.arena;
+        let to_wall = |p: f64, d: f64, far: f64| {
+            if d > 1e-9 {
+                (far - p) / d
+            } else if d < -1e-9 {
+                -p / d
+            } else {
+                f64::INFINITY
+            }
+        };
+        let wall = to_wall(front.0, c, w).min(to_wall(front.1, s, h));
+        robot_there || wall < reach
+    }
+
     fn follow(&mut self, id: u16, speed: Option<f32>) -> Option<Intent> {
         let bot = self.bots.get_mut(&id)?;
         if bot.following == speed {
@@ -162,23 +207,34 @@ impl TokenRing {
         Some(Intent::FollowLine { robot: id, speed })
     }
 
-    /// Queues a manoeuvre; its moves go out one at a time, so a move the safety check holds is
-    /// simply tried again later instead of leaving the robot halfway.
-    fn send(&mut self, id: u16, route: Route) -> Vec<Intent> {
+    /// Starts a manoeuvre; its moves go out one at a time, each from the robot's pose when the
+    /// last has finished, so a move the safety check holds is simply tried again later instead
+    /// of leaving the robot halfway.
+    fn send(&mut self, id: u16, legs: &[Leg], world: &WorldSnapshot) -> Vec<Intent> {
         if let Some(bot) = self.bots.get_mut(&id) {
-            bot.queue.extend(route.moves);
+            bot.legs = Legs::new(MANOEUVRE_MPS);
+            for leg in legs {
+                bot.legs.push(*leg);
+            }
             bot.following = None;
         }
-        self.pump(id).into_iter().collect()
+        self.pump(id, world).into_iter().collect()
     }
 
-    /// The robot's next queued move, if none is running.
-    fn pump(&mut self, id: u16) -> Option<Intent> {
+    /// The robot's next manoeuvre move, if none is running and the robot has settled: a turn
+    /// is reported finished while the wheels still coast, and a leg planned from that pose would
+    /// be off by the rest of the coast.
+    fn pump(&mut self, id: u16, world: &WorldSnapshot) -> Option<Intent> {
+        let pose = world.robot(id)?.pose;
         let bot = self.bots.get_mut(&id)?;
-        if bot.outstanding > 0 {
+        let settled = bot
+            .still_since
+            .is_some_and(|t| world.time.saturating_sub(t) >= SETTLE);
+        if bot.outstanding > 0 || !settled {
             return None;
         }
-        let command = bot.queue.pop_front()?;
+        let command = bot.legs.next(pose)?;
+        tracing::debug!(robot = id, ?command, ?pose, "manoeuvre move");
         bot.outstanding = 1;
         Some(Intent::Move { robot: id, command })
     }
@@ -186,7 +242,7 @@ impl TokenRing {
     fn busy(&self, id: u16) -> bool {
         self.bots
             .get(&id)
-            .is_some_and(|b| b.outstanding > 0 || !b.queue.is_empty())
+            .is_some_and(|b| b.outstanding > 0 || !b.legs.is_empty())
     }
 
     fn leds(&self) -> Vec<Intent> {
@@ -203,20 +259,40 @@ impl TokenRing {
             .collect()
     }
 
-    /// Around the box on the robot's right: back off a little, step aside, pass, step back.
-    fn detour(&mut self, view: &RobotView) -> Vec<Intent> {
-        let h = view.pose.theta;
-        let route = Route::from(view.pose, MANOEUVRE_MPS)
-            .straight(-0.01)
-            .turn_to(h - FRAC_PI_2)
-            .straight(DETOUR_SIDE)
-            .turn_to(h)
-            .straight(DETOUR_ALONG)
-            .turn_to(h + FRAC_PI_2)
-            .straight(DETOUR_SIDE)
-            .turn_to(h);
+    /// Around the box on the robot's right: back off a little, step aside, pass, step back onto
+    /// the tape where it continues past the box, face along it.
+    fn detour(&mut self, view: &RobotView, world: &WorldSnapshot) -> Vec<Intent> {
+        let p = view.pose;
+        let (s, c) = p.theta.sin_cos();
+        let (rx, ry) = (s, -c);
+        let ahead = nalgebra::Point2::new(p.x + DETOUR_ALONG * c, p.y + DETOUR_ALONG * s);
+        // Rejoin on the tape itself where it is near, so the line sensor finds it under its
+        // centre; facing along it in the direction of travel.
+        let (rejoin, heading) = match self.tape.nearest(ahead) {
+            Some(n) if n.distance_m < 0.03 => {
+                let t = n.tangent * n.tangent.dot(&nalgebra::Vector2::new(c, s)).signum();
+                (n.point, t.y.atan2(t.x))
+            }
+            _ => (ahead, p.theta),
+        };
+        let legs = [
+            Leg::Straight(-0.01),
+            Leg::To {
+                x: p.x + DETOUR_SIDE * rx,
+                y: p.y + DETOUR_SIDE * ry,
+            },
+            Leg::To {
+                x: rejoin.x + DETOUR_SIDE * rx,
+                y: rejoin.y + DETOUR_SIDE * ry,
+            },
+            Leg::To {
+                x: rejoin.x,
+                y: rejoin.y,
+            },
+            Leg::Face(heading),
+        ];
         self.detours += 1;
-        self.send(view.id, route)
+        self.send(view.id, &legs, world)
     }
 
     fn finish(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
@@ -254,6 +330,16 @@ impl TokenRing {
 
     fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         let mut out = Vec::new();
+        for view in &world.robots {
+            if let Some(bot) = self.bots.get_mut(&view.id) {
+                let w = view.state.wheels;
+                bot.still_since = if w.left_mps == 0.0 && w.right_mps == 0.0 {
+                    bot.still_since.or(Some(world.time))
+                } else {
+                    None
+                };
+            }
+        }
         if world.time.saturating_sub(self.last_pass) > PASS_LIMIT {
             return self.fail(format!(
                 "no token pass for {} s after {} passes",
@@ -270,6 +356,9 @@ impl TokenRing {
                 self.direction = -self.direction;
                 self.reversals += 1;
             } else {
+                for id in self.order.clone() {
+                    out.extend(self.pump(id, world));
+                }
                 return out;
             }
         }
@@ -279,9 +368,8 @@ impl TokenRing {
             self.turning = true;
             for id in self.order.clone() {
                 if let Some(view) = world.robot(id) {
-                    let route = Route::from(view.pose, MANOEUVRE_MPS).turn_to(view.pose.theta + PI);
                     out.push(Intent::Stop { robot: id });
-                    out.extend(self.send(id, route));
+                    out.extend(self.send(id, &[Leg::Face(view.pose.theta + PI)], world));
                 }
             }
             return out;
@@ -296,9 +384,9 @@ impl TokenRing {
             if bot.outstanding > 0 {
                 continue;
             }
-            if !bot.queue.is_empty() {
+            if !bot.legs.is_empty() {
                 // A held move: try it again.
-                out.extend(self.pump(id));
+                out.extend(self.pump(id, world));
                 continue;
             }
             if !bot.started {
@@ -312,7 +400,8 @@ impl TokenRing {
             let ahead = self.ahead(view, world);
             let gap = ahead.map_or(f64::INFINITY, |(_, d)| d);
             let level = view.state.proximity.front_obstacle;
-            if level == 1 && gap > 0.15 {
+            let unknown = level > 0 && !self.reflection_explained(view, world, level);
+            if level == 1 && unknown {
                 out.extend(self.follow(id, None));
                 // One detour at a time: the box's surroundings hold one robot off the tape.
                 let someone_detouring = self.order.iter().any(|o| *o != id && self.busy(*o));
@@ -326,7 +415,7 @@ impl TokenRing {
                     .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
                 if !someone_detouring && rejoin_clear {
                     out.push(Intent::Stop { robot: id });
-                    out.extend(self.detour(view));
+                    out.extend(self.detour(view, world));
                 }
                 continue;
             }
@@ -338,7 +427,7 @@ impl TokenRing {
             } else {
                 current
             };
-            if gap > 0.15 && (2..=3).contains(&level) {
+            if unknown && (2..=3).contains(&level) {
                 want = want.map(|v| v.min(CREEP_MPS));
             }
             out.extend(self.follow(id, want));
@@ -414,7 +503,7 @@ impl Behaviour for TokenRing {
                         bot.aborted = true;
                     }
                 }
-                self.pump(robot).into_iter().collect()
+                self.pump(robot, world).into_iter().collect()
             }
             RobotEventKind::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
@@ -422,12 +511,11 @@ impl Behaviour for TokenRing {
     }
 
     fn on_held(&mut self, intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
-        // A held move never ran: it goes back to the front of the robot's queue and is tried
-        // again at the next snapshot.
-        if let Intent::Move { robot, command } = intent {
+        // A held move never ran: the leg stays, and the next snapshot tries it again.
+        if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.get_mut(robot) {
                 bot.outstanding = bot.outstanding.saturating_sub(1);
-                bot.queue.push_front(*command);
+                bot.legs.held();
             }
         }
         Vec::new()

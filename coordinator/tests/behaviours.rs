@@ -91,6 +91,40 @@ fn one_robot_alone_never_clears_the_box() {
 }
 
 #[test]
+fn token_ring_goes_round_three_times_without_touching_for_seeds_1_to_10() {
+    for seed in 1..=10 {
+        let r = run("token_ring", None, None, seed, &[]);
+        assert!(r.verdict.success, "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
+        let metric = |name: &str| {
+            r.verdict
+                .metrics
+                .iter()
+                .find(|(k, _)| k == name)
+                .map(|(_, v)| *v)
+        };
+        // Three rounds of three robots, with the team turned round after each of the first two.
+        assert_eq!(metric("passes"), Some(9.0), "seed {seed}: {r}");
+        assert_eq!(metric("reversals"), Some(2.0), "seed {seed}: {r}");
+        let [b] = r.obstacles.as_slice() else {
+            panic!("one box: {r}")
+        };
+        // Driven around, not pushed: the box is too heavy, and touching it slips the wheels.
+        assert!(b.moved_m < 0.002, "seed {seed}: {r}");
+        for robot in &r.robots {
+            // Everyone went round the loop at least twice (a robot may end mid-detour, so not
+            // necessarily on the tape), and the world model still knows where it is.
+            assert!(
+                robot.distance_m.unwrap() > 2.0 * oval_m(),
+                "seed {seed}: {r}"
+            );
+            assert!(robot.estimate_error_m().unwrap() < 0.03, "seed {seed}: {r}");
+        }
+    }
+}
+
+#[test]
 fn traffic_control_serves_tasks_on_the_grid_without_collisions_for_seeds_1_to_10() {
     for seed in 1..=10 {
         let r = run(
