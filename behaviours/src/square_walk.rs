@@ -144,7 +144,10 @@ impl Behaviour for SquareWalk {
     fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         for r in &world.robots {
             if let Some(w) = self.walkers.get_mut(&r.id) {
-                if w.done == w.expected && w.end.is_none() && r.pending_moves == 0 {
+                // The last turn is reported finished a coast early and coasts onto its heading
+                // (about 20° at this speed), so the closure is judged once the wheels rest.
+                let resting = r.state.wheels.left_mps == 0.0 && r.state.wheels.right_mps == 0.0;
+                if w.done == w.expected && w.end.is_none() && r.pending_moves == 0 && resting {
                     w.end = Some(r.pose);
                 }
             }
