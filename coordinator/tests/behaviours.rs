@@ -33,6 +33,15 @@ fn run(
         .expect("experiment runs")
 }
 
+/// A metric of the verdict, by name.
+fn metric(r: &Report, name: &str) -> Option<f64> {
+    r.verdict
+        .metrics
+        .iter()
+        .find(|(k, _)| k == name)
+        .map(|(_, v)| *v)
+}
+
 /// Length of the oval's tape loop.
 fn oval_m() -> f64 {
     1.0 + 0.3 * std::f64::consts::PI
@@ -97,16 +106,9 @@ fn token_ring_goes_round_three_times_without_touching_for_seeds_1_to_10() {
         assert!(r.verdict.success, "seed {seed}: {r}");
         assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
         assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
-        let metric = |name: &str| {
-            r.verdict
-                .metrics
-                .iter()
-                .find(|(k, _)| k == name)
-                .map(|(_, v)| *v)
-        };
         // Three rounds of three robots, with the team turned round after each of the first two.
-        assert_eq!(metric("passes"), Some(9.0), "seed {seed}: {r}");
-        assert_eq!(metric("reversals"), Some(2.0), "seed {seed}: {r}");
+        assert_eq!(metric(&r, "passes"), Some(9.0), "seed {seed}: {r}");
+        assert_eq!(metric(&r, "reversals"), Some(2.0), "seed {seed}: {r}");
         let [b] = r.obstacles.as_slice() else {
             panic!("one box: {r}")
         };
@@ -137,12 +139,7 @@ fn traffic_control_serves_tasks_on_the_grid_without_collisions_for_seeds_1_to_10
         assert!(r.verdict.success, "seed {seed}: {r}");
         assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
         assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
-        let tasks = r
-            .verdict
-            .metrics
-            .iter()
-            .find(|(k, _)| k == "tasks")
-            .map(|(_, v)| *v);
+        let tasks = metric(&r, "tasks");
         assert!(tasks.is_some_and(|t| t >= 40.0), "seed {seed}: {r}");
     }
 }
@@ -191,12 +188,7 @@ fn traffic_control_does_100_tasks_with_8_robots_on_junction_and_50_on_a_grid() {
         assert!(r.verdict.success, "{world}: {r}");
         assert_eq!(r.robot_collisions, Some(0), "{world}: {r}");
         assert_eq!(r.wall_contacts, Some(0), "{world}: {r}");
-        let tasks = r
-            .verdict
-            .metrics
-            .iter()
-            .find(|(k, _)| k == "tasks")
-            .map(|(_, v)| *v);
+        let tasks = metric(&r, "tasks");
         assert!(tasks.is_some_and(|t| t >= 100.0), "{world}: {r}");
     }
 }
