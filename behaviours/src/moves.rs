@@ -1,5 +1,6 @@
 //! Move sequences computed from poses: drive to a point, turn to a heading. Behaviours plan
-//! manoeuvres off the tape with these and hand them to the robots' own locomotion.
+//! manoeuvres off the tape with these and hand them to the robots' own locomotion, either all at
+//! once ([`Route`], open-loop) or one move at a time from the robot's latest pose ([`Legs`]).
 
 use std::collections::VecDeque;
 use std::f64::consts::{PI, TAU};
