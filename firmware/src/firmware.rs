@@ -565,7 +565,7 @@ impl<B: Board> Firmware<B> {
             self.drive,
             Drive::LineFollow { .. } | Drive::WheelSpeeds { .. }
         );
-        let slowest_seen = tick / timeout.as_secs_f32().max(1e-3);
+        let slowest_seen = self.slowest_seen();
         let speeds = [wheels.left_mps, wheels.right_mps];
         let mut duty = [pwm.0, pwm.1];
         for (k, d) in duty.iter_mut().enumerate() {
@@ -666,6 +666,13 @@ impl<B: Board> Firmware<B> {
         }
     }
 
+    /// The slowest wheel speed the speed meter resolves: one pulse per timeout.
+    fn slowest_seen(&self) -> f32 {
+        let g = self.settings.geometry;
+        let timeout = Duration::from_micros(u64::from(self.settings.speed_meter.timeout_us));
+        tick_m(g.wheel_diameter_m, g.ticks_per_rev) / timeout.as_secs_f32().max(1e-3)
+    }
+
     fn wheel_speed_control(
         &mut self,
         wheels: WheelInputs,
@@ -674,10 +681,7 @@ impl<B: Board> Firmware<B> {
     ) -> (f32, f32) {
         let ff = self.settings.locomotion.pwm_per_mps;
         let gains = self.settings.wheel_pid;
-        let g = self.settings.geometry;
-        let timeout = Duration::from_micros(u64::from(self.settings.speed_meter.timeout_us));
-        let slowest_seen =
-            tick_m(g.wheel_diameter_m, g.ticks_per_rev) / timeout.as_secs_f32().max(1e-3);
+        let slowest_seen = self.slowest_seen();
         let measured = [wheels.left_mps, wheels.right_mps];
         let mut duty = [0.0; 2];
         for (k, t) in [target.0, target.1].into_iter().enumerate() {
