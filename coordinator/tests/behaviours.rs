@@ -42,6 +42,14 @@ fn metric(r: &Report, name: &str) -> Option<f64> {
         .map(|(_, v)| *v)
 }
 
+/// The world's one obstacle.
+fn the_box(r: &Report) -> &coordinator::ObstacleReport {
+    let [b] = r.obstacles.as_slice() else {
+        panic!("one box: {r}")
+    };
+    b
+}
+
 /// Length of the oval's tape loop.
 fn oval_m() -> f64 {
     1.0 + 0.3 * std::f64::consts::PI
@@ -75,9 +83,7 @@ fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
         let r = run("cooperative_push", None, None, seed, &[]);
         assert!(r.verdict.success, "seed {seed}: {r}");
         assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
-        let [b] = r.obstacles.as_slice() else {
-            panic!("one box: {r}")
-        };
+        let b = the_box(&r);
         // Off the tape by more than a body length (48 mm).
         assert!(b.clear_of_tape_m > 0.048, "seed {seed}: {r}");
         for robot in &r.robots {
@@ -92,9 +98,7 @@ fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
 fn one_robot_alone_never_clears_the_box() {
     let r = run("cooperative_push", None, Some(1), 1, &[]);
     assert!(!r.verdict.success, "{r}");
-    let [b] = r.obstacles.as_slice() else {
-        panic!("one box: {r}")
-    };
+    let b = the_box(&r);
     assert!(b.moved_m < 0.005, "{r}");
     assert_eq!(b.clear_of_tape_m, 0.0, "{r}");
 }
@@ -109,9 +113,7 @@ fn token_ring_goes_round_three_times_without_touching_for_seeds_1_to_10() {
         // Three rounds of three robots, with the team turned round after each of the first two.
         assert_eq!(metric(&r, "passes"), Some(9.0), "seed {seed}: {r}");
         assert_eq!(metric(&r, "reversals"), Some(2.0), "seed {seed}: {r}");
-        let [b] = r.obstacles.as_slice() else {
-            panic!("one box: {r}")
-        };
+        let b = the_box(&r);
         // Driven around, not pushed: the box is too heavy, and touching it slips the wheels.
         assert!(b.moved_m < 0.002, "seed {seed}: {r}");
         for robot in &r.robots {
