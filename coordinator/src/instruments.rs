@@ -48,6 +48,8 @@ pub(crate) struct Hooks {
     replay: Option<Arc<Recording>>,
     t0: Instant,
     feed: Option<broadcast::Sender<Arc<str>>>,
+    /// Bound when the hooks are made, served once the robots are connected.
+    listener: Option<std::net::TcpListener>,
     panel: Option<PanelServer>,
     links: Option<tokio::task::JoinHandle<()>>,
 }
@@ -59,6 +61,11 @@ impl Hooks {
         robots: usize,
         instruments: Instruments,
     ) -> Result<Self> {
+        // First, so that a busy panel address stops the run before anything starts.
+        let listener = match &instruments.panel {
+            Some(options) => Some(crate::panel::bind(options.addr)?),
+            None => None,
+        };
         let replay = match &plan.transport {
             Transport::Replay(path) => Some(Arc::new(crate::replay::load(path)?)),
             _ => None,
@@ -89,6 +96,7 @@ impl Hooks {
             replay,
             t0,
             feed,
+            listener,
             panel: None,
             links: None,
         })
@@ -140,7 +148,7 @@ impl Hooks {
         robots: &[(u16, Robot)],
         world: &World,
     ) -> Result<()> {
-        let (Some(options), Some(feed)) = (&self.instruments.panel, &self.feed) else {
+        let (Some(listener), Some(feed)) = (self.listener.take(), &self.feed) else {
             return Ok(());
         };
         let scene = json!({
@@ -152,15 +160,14 @@ impl Hooks {
             "replay": self.replay.is_some(),
         });
         let server = crate::panel::serve(
-            options.addr,
+            listener,
             PanelContext {
                 supervisor: supervisor.clone(),
                 robots: robots.to_vec(),
                 feed: feed.clone(),
                 scene,
             },
-        )
-        .await?;
+        )?;
         eprintln!("coordinator: control panel at {}", server.url);
         self.panel = Some(server);
         self.links = Some(tokio::spawn(link_stats(robots.to_vec(), feed.clone())));

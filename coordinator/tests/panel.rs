@@ -1,6 +1,7 @@
-//! The control panel: the token rule off loopback, and the page itself driven in headless
-//! Chromium over the DevTools protocol (robots shown, joystick drive, settings write with
-//! read-back, e-stop, phone-sized layout, screenshot).
+//! The control panel: its own Host and Origin only, the run's token on the WebSocket (and on
+//! every request off loopback), a busy address refused before the run, and the page itself driven
+//! in headless Chromium over the DevTools protocol (robots shown, joystick drive, settings write
+//! with read-back, e-stop, phone-sized layout, screenshot).
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -11,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use futures::{SinkExt, StreamExt};
 use serde_json::{json, Value};
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::Message;
 
 /// A coordinator child process, killed when dropped.
@@ -55,11 +57,14 @@ fn addr_of(url: &str) -> SocketAddr {
     host.parse().unwrap()
 }
 
-/// One HTTP/1.0 request; returns the status code and body.
+/// One HTTP/1.1 GET (`Host: ADDR` unless `headers` name one); returns the status code and body.
 fn http(addr: SocketAddr, path: &str, headers: &[&str]) -> (u16, String) {
     let mut s = TcpStream::connect(addr).expect("connect");
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    let mut req = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n");
+    let mut req = format!("GET {path} HTTP/1.1\r\n");
+    if !headers.iter().any(|h| h.starts_with("Host:")) {
+        req.push_str(&format!("Host: {addr}\r\n"));
+    }
     if !headers.iter().any(|h| h.starts_with("Connection:")) {
         req.push_str("Connection: close\r\n");
     }
@@ -103,6 +108,29 @@ fn outward_ip() -> std::net::IpAddr {
         .unwrap_or(std::net::Ipv4Addr::LOCALHOST.into())
 }
 
+/// The headers of a WebSocket upgrade.
+const WS: [&str; 4] = [
+    "Upgrade: websocket",
+    "Connection: Upgrade",
+    "Sec-WebSocket-Version: 13",
+    "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+];
+
+/// A WebSocket upgrade carrying `extra` headers too.
+fn ws_with<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    WS.iter().copied().chain(extra.iter().copied()).collect()
+}
+
+/// The token the panel's page embeds for its WebSocket.
+fn token_in(page: &str) -> String {
+    let tag = "<meta name=\"pocketfleet-token\" content=\"";
+    let rest = page
+        .split(tag)
+        .nth(1)
+        .unwrap_or_else(|| panic!("the page embeds its token: {page}"));
+    rest.split('"').next().unwrap().to_string()
+}
+
 #[test]
 fn off_loopback_every_request_needs_the_token() {
     let c = coordinator(&[
@@ -123,12 +151,8 @@ fn off_loopback_every_request_needs_the_token() {
     let port = addr_of(&c.url).port();
     let addr = SocketAddr::new(outward_ip(), port);
     eprintln!("asking {addr}");
-    let ws = [
-        "Upgrade: websocket",
-        "Connection: Upgrade",
-        "Sec-WebSocket-Version: 13",
-        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
-    ];
+    let origin = format!("Origin: http://{addr}");
+    let ws = ws_with(&[&origin]);
 
     let (status, body) = http(addr, "/", &[]);
     assert_eq!(status, 401, "{body}");
@@ -140,13 +164,22 @@ fn off_loopback_every_request_needs_the_token() {
     let (status, body) = http(addr, &format!("/?token={token}"), &[]);
     assert_eq!(status, 200);
     assert!(body.contains("PocketFleet"));
+    assert_eq!(token_in(&body), token);
     let bearer = format!("Authorization: Bearer {token}");
     assert_eq!(http(addr, "/", &[&bearer]).0, 200);
     assert_eq!(http(addr, &format!("/ws?token={token}"), &ws).0, 101);
+    // The token does not stand in for the panel's own Host and Origin.
+    let foreign = ws_with(&["Origin: http://evil.example"]);
+    assert_eq!(http(addr, &format!("/ws?token={token}"), &foreign).0, 403);
+    let rebound = format!("Host: evil.example:{port}");
+    assert_eq!(
+        http(addr, &format!("/?token={token}"), &[&rebound]).0,
+        403
+    );
 }
 
 #[test]
-fn loopback_panel_needs_no_token() {
+fn loopback_page_needs_no_token_and_embeds_it() {
     let c = coordinator(&[
         "--behaviour",
         "teleop",
@@ -159,6 +192,88 @@ fn loopback_panel_needs_no_token() {
     let (status, body) = http(addr_of(&c.url), "/", &[]);
     assert_eq!(status, 200);
     assert!(body.contains("<svg id=\"arena\""));
+    let token = token_in(&body);
+    assert!(
+        token.len() >= 32 && token.bytes().all(|b| b.is_ascii_hexdigit()),
+        "{token}"
+    );
+}
+
+#[test]
+fn only_the_panels_own_page_may_command_it() {
+    let c = coordinator(&[
+        "--behaviour",
+        "teleop",
+        "--panel",
+        "127.0.0.1:0",
+        "--duration",
+        "120",
+    ]);
+    let addr = addr_of(&c.url);
+    let port = addr.port();
+    let (status, page) = http(addr, "/", &[]);
+    assert_eq!(status, 200, "{page}");
+    let token = token_in(&page);
+    let with_token = format!("/ws?token={token}");
+    let ours = format!("Origin: http://{addr}");
+
+    // A page from another site: its Origin gives it away, on the page and the WebSocket.
+    let foreign = "Origin: http://evil.example";
+    let (status, body) = http(addr, "/", &[foreign]);
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("refused"), "{body}");
+    assert_eq!(http(addr, &with_token, &ws_with(&[foreign])).0, 403);
+    let null = "Origin: null";
+    assert_eq!(http(addr, &with_token, &ws_with(&[null])).0, 403);
+
+    // DNS rebinding: another site's name resolving to 127.0.0.1 still says so in Host.
+    let rebound = format!("Host: evil.example:{port}");
+    let (status, body) = http(addr, "/", &[&rebound]);
+    assert_eq!(status, 403, "{body}");
+    assert!(body.contains("Host"), "{body}");
+    let rebound_origin = format!("Origin: http://evil.example:{port}");
+    assert_eq!(
+        http(addr, &with_token, &ws_with(&[&rebound, &rebound_origin])).0,
+        403
+    );
+
+    // The panel's own Origin without the token, or with a wrong one, or the token without an
+    // Origin: refused.
+    let (status, body) = http(addr, "/ws", &ws_with(&[&ours]));
+    assert_eq!(status, 401, "{body}");
+    assert!(body.contains("token"), "{body}");
+    assert_eq!(http(addr, "/ws?token=0123", &ws_with(&[&ours])).0, 401);
+    assert_eq!(http(addr, &with_token, &WS).0, 403);
+
+    // Host, Origin and token all the panel's own: the WebSocket opens, also under `localhost`.
+    assert_eq!(http(addr, &with_token, &ws_with(&[&ours])).0, 101);
+    let local_host = format!("Host: localhost:{port}");
+    let local_origin = format!("Origin: http://localhost:{port}");
+    assert_eq!(
+        http(addr, &with_token, &ws_with(&[&local_host, &local_origin])).0,
+        101
+    );
+    let bearer = format!("Authorization: Bearer {token}");
+    assert_eq!(http(addr, "/ws", &ws_with(&[&ours, &bearer])).0, 101);
+}
+
+#[test]
+fn a_busy_panel_address_is_refused_before_the_run() {
+    let held = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = held.local_addr().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args(["--behaviour", "square_walk", "--duration", "20", "--panel"])
+        .arg(addr.to_string())
+        .output()
+        .expect("coordinator runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains(&addr.to_string()), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
+    // Refused before the run: no report was printed.
+    assert!(out.stdout.is_empty(), "{}", String::from_utf8_lossy(&out.stdout));
+    drop(held);
 }
 
 // ---- headless Chromium over the DevTools protocol ----
@@ -545,15 +660,20 @@ fn the_panel_follows_a_replay() {
         .expect("coordinator runs");
     assert!(status.success());
     let c = coordinator(&["replay", path.to_str().unwrap(), "--panel", "127.0.0.1:0"]);
-    let url = c.url.replace("http://", "ws://") + "ws";
+    let addr = addr_of(&c.url);
+    let token = token_in(&http(addr, "/", &[]).1);
+    let mut request = format!("ws://{addr}/ws?token={token}")
+        .into_client_request()
+        .unwrap();
+    request
+        .headers_mut()
+        .insert("Origin", format!("http://{addr}").parse().unwrap());
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .unwrap();
     rt.block_on(async move {
-        let (mut ws, _) = tokio_tungstenite::connect_async(url.as_str())
-            .await
-            .unwrap();
+        let (mut ws, _) = tokio_tungstenite::connect_async(request).await.unwrap();
         let mut hello = None;
         let mut poses = Vec::new();
         let deadline = Instant::now() + Duration::from_secs(60);

@@ -3,20 +3,24 @@
 //! check; settings go through the robot actor's typed settings reflection (written, then read
 //! back).
 //!
-//! The panel listens on loopback by default. On any other address every request, the WebSocket
-//! included, must carry the token printed at start (`?token=…` or `Authorization: Bearer …`).
+//! Every request must name the panel's own address in `Host` (no DNS rebinding), and an `Origin`,
+//! required on the WebSocket, must be the panel's own page. The WebSocket also needs the run's
+//! token (`?token=…` or `Authorization: Bearer …`), which the page served at `/` embeds. On
+//! loopback the page itself needs no token; on any other address every request does.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 
 use actix::Addr;
 use anyhow::{Context as _, Result};
+use axum::extract::connect_info::{ConnectInfo, Connected};
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Request, State};
-use axum::http::StatusCode;
+use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
+use axum::serve::IncomingStream;
 use axum::Router;
 use behaviours::{Behaviour, Intent, MoveCommand, Registry, Verdict, WorldSnapshot};
 use protocol::packets::ReflectorMode;
@@ -29,6 +33,9 @@ use crate::record::{leaf_bytes, leaf_value, leaves, Leaf};
 use crate::supervisor::{EStop, PanelIntent, Supervisor};
 
 const INDEX: &str = include_str!("index.html");
+
+/// Where the page carries the run's token; replaced when the page is served.
+const TOKEN_SLOT: &str = "{{PANEL_TOKEN}}";
 
 /// Reflector period while a robot's PID view is open (reduced state), milliseconds.
 pub const PID_PERIOD_MS: u16 = 10;
@@ -60,9 +67,9 @@ pub struct PanelContext {
 pub struct PanelServer {
     /// Where it listens.
     pub addr: SocketAddr,
-    /// Required on every request when not on loopback.
-    pub token: Option<String>,
-    /// The page's address, token included.
+    /// This run's token: the WebSocket always needs it, every request does off loopback.
+    pub token: String,
+    /// The page's address; it carries the token only when the panel is not on loopback.
     pub url: String,
     task: tokio::task::JoinHandle<()>,
 }
@@ -94,30 +101,70 @@ fn new_token() -> String {
 #[derive(Clone)]
 struct AppState {
     ctx: PanelContext,
-    token: Option<Arc<str>>,
+    token: Arc<str>,
+    /// The page with the token in place.
+    page: Arc<str>,
+    /// Off loopback the page itself also needs the token.
+    token_everywhere: bool,
 }
 
-/// Starts serving on the current tokio runtime.
+/// The local address a connection reached: with a wildcard bind this is the interface's own
+/// address, which is what a browser that really asked for this panel puts in `Host`.
+#[derive(Clone, Copy, Debug)]
+struct Reached(SocketAddr);
+
+impl Connected<IncomingStream<'_, tokio::net::TcpListener>> for Reached {
+    fn connect_info(stream: IncomingStream<'_, tokio::net::TcpListener>) -> Self {
+        // An address that names nothing makes every Host wrong: refused rather than guessed.
+        Reached(
+            stream
+                .io()
+                .local_addr()
+                .unwrap_or_else(|_| SocketAddr::from(([0, 0, 0, 0], 0))),
+        )
+    }
+}
+
+/// Binds the panel's address now, so that a busy or foreign address is a one-line error before
+/// any robot moves.
 ///
 /// # Errors
-/// The address cannot be bound.
-pub async fn serve(addr: SocketAddr, ctx: PanelContext) -> Result<PanelServer> {
-    let token = (!addr.ip().is_loopback()).then(new_token);
+/// The address cannot be bound (in use, not this machine's, no permission).
+pub fn bind(addr: SocketAddr) -> Result<std::net::TcpListener> {
+    let listener = std::net::TcpListener::bind(addr)
+        .with_context(|| format!("panel: cannot listen on {addr}"))?;
+    listener
+        .set_nonblocking(true)
+        .with_context(|| format!("panel: cannot listen on {addr}"))?;
+    Ok(listener)
+}
+
+/// Starts serving on the current tokio runtime from a listener made by [`bind`].
+///
+/// # Errors
+/// The listener cannot be handed to tokio.
+pub fn serve(listener: std::net::TcpListener, ctx: PanelContext) -> Result<PanelServer> {
+    let local = listener.local_addr()?;
+    // Tokio requires a non-blocking socket; `bind` made it so, a caller's own may not be.
+    listener.set_nonblocking(true)?;
+    let listener = tokio::net::TcpListener::from_std(listener)
+        .with_context(|| format!("panel: cannot serve on {local}"))?;
+    let token = new_token();
+    let token_everywhere = !local.ip().is_loopback();
     let state = AppState {
         ctx,
-        token: token.as_deref().map(Arc::from),
+        token: Arc::from(token.as_str()),
+        page: Arc::from(INDEX.replace(TOKEN_SLOT, &token)),
+        token_everywhere,
     };
     let app = Router::new()
-        .route("/", get(|| async { Html(INDEX) }))
+        .route("/", get(page))
         .route("/ws", get(ws))
-        .layer(middleware::from_fn_with_state(state.clone(), require_token))
+        .layer(middleware::from_fn_with_state(state.clone(), guard))
         .with_state(state);
-    let listener = tokio::net::TcpListener::bind(addr)
-        .await
-        .with_context(|| format!("panel: cannot listen on {addr}"))?;
-    let local = listener.local_addr()?;
     let task = tokio::spawn(async move {
-        if let Err(e) = axum::serve(listener, app).await {
+        let service = app.into_make_service_with_connect_info::<Reached>();
+        if let Err(e) = axum::serve(listener, service).await {
             tracing::warn!(error = %e, "panel server stopped");
         }
     });
@@ -126,9 +173,10 @@ pub async fn serve(addr: SocketAddr, ctx: PanelContext) -> Result<PanelServer> {
     } else {
         local
     };
-    let url = match &token {
-        Some(t) => format!("http://{shown}/?token={t}"),
-        None => format!("http://{shown}/"),
+    let url = if token_everywhere {
+        format!("http://{shown}/?token={token}")
+    } else {
+        format!("http://{shown}/")
     };
     Ok(PanelServer {
         addr: local,
@@ -138,30 +186,138 @@ pub async fn serve(addr: SocketAddr, ctx: PanelContext) -> Result<PanelServer> {
     })
 }
 
-async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
-    let Some(token) = &state.token else {
-        return next.run(req).await;
+async fn page(State(state): State<AppState>) -> Response {
+    let mut r = Html(state.page.to_string()).into_response();
+    let h = r.headers_mut();
+    // The page carries the token: not cached, not framed by another site, not sent on as a
+    // referrer.
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    h.insert(header::X_FRAME_OPTIONS, HeaderValue::from_static("DENY"));
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static("frame-ancestors 'none'"),
+    );
+    h.insert(
+        header::REFERRER_POLICY,
+        HeaderValue::from_static("no-referrer"),
+    );
+    r
+}
+
+/// The `Host` values under which a connection that reached `local` is asking for this panel:
+/// the address itself and, on loopback, `localhost`; without the port when it is HTTP's own.
+fn allowed_hosts(local: SocketAddr) -> Vec<String> {
+    let ip = match local.ip() {
+        IpAddr::V6(v6) => v6
+            .to_ipv4_mapped()
+            .map_or(IpAddr::V6(v6), IpAddr::V4),
+        v4 => v4,
     };
+    let port = local.port();
+    let mut names = vec![SocketAddr::new(ip, port).to_string()];
+    if ip.is_loopback() {
+        names.push(format!("localhost:{port}"));
+    }
+    if port == 80 {
+        let bare: Vec<String> = names
+            .iter()
+            .filter_map(|n| n.strip_suffix(":80").map(str::to_string))
+            .collect();
+        names.extend(bare);
+    }
+    names
+}
+
+/// Why a request is refused, if it is: `Host`, then `Origin`, then the token.
+fn refusal(
+    allowed: &[String],
+    host: Option<&str>,
+    origin: Option<&str>,
+    websocket: bool,
+    token: Option<&str>,
+    state: &AppState,
+) -> Option<(StatusCode, String)> {
+    let ours = allowed.first().map_or("", String::as_str);
+    if !host.is_some_and(|h| allowed.iter().any(|a| a.eq_ignore_ascii_case(h))) {
+        return Some((
+            StatusCode::FORBIDDEN,
+            format!("refused: the Host header does not name this panel (open http://{ours}/)\n"),
+        ));
+    }
+    match origin {
+        Some(o)
+            if !allowed.iter().any(|a| {
+                o.strip_prefix("http://")
+                    .is_some_and(|h| h.eq_ignore_ascii_case(a))
+            }) =>
+        {
+            return Some((
+                StatusCode::FORBIDDEN,
+                format!("refused: requests from another site's page (the panel is http://{ours})\n"),
+            ));
+        }
+        None if websocket => {
+            return Some((
+                StatusCode::FORBIDDEN,
+                format!("refused: the WebSocket needs an Origin header naming http://{ours}\n"),
+            ));
+        }
+        _ => {}
+    }
+    match token {
+        Some(t) if same(t.as_bytes(), state.token.as_bytes()) => None,
+        Some(_) => Some((
+            StatusCode::UNAUTHORIZED,
+            "refused: wrong token; open the URL the coordinator printed\n".to_string(),
+        )),
+        None if websocket || state.token_everywhere => Some((
+            StatusCode::UNAUTHORIZED,
+            "refused: this panel needs its token: open the URL the coordinator printed\n"
+                .to_string(),
+        )),
+        None => None,
+    }
+}
+
+/// Compares without stopping at the first difference, so timing does not reveal a prefix.
+fn same(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// The token a request carries, in its query or as a bearer credential.
+fn token_of(req: &Request) -> Option<&str> {
     let in_query = req
         .uri()
         .query()
         .into_iter()
         .flat_map(|q| q.split('&'))
-        .any(|kv| kv.strip_prefix("token=") == Some(token));
-    let in_header = req
-        .headers()
-        .get(axum::http::header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        == Some(token);
-    if in_query || in_header {
-        next.run(req).await
-    } else {
-        (
-            StatusCode::UNAUTHORIZED,
-            "this panel needs its token: open the URL the coordinator printed\n",
-        )
-            .into_response()
+        .find_map(|kv| kv.strip_prefix("token="));
+    in_query.or_else(|| {
+        req.headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+    })
+}
+
+async fn guard(
+    State(state): State<AppState>,
+    ConnectInfo(Reached(local)): ConnectInfo<Reached>,
+    req: Request,
+    next: Next,
+) -> Response {
+    let header_str = |name| req.headers().get(name).and_then(|v: &HeaderValue| v.to_str().ok());
+    let refused = refusal(
+        &allowed_hosts(local),
+        header_str(header::HOST),
+        header_str(header::ORIGIN),
+        req.uri().path() == "/ws",
+        token_of(&req),
+        &state,
+    );
+    match refused {
+        Some(why) => why.into_response(),
+        None => next.run(req).await,
     }
 }
 
