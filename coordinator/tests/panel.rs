@@ -82,7 +82,7 @@ fn http(addr: SocketAddr, path: &str, headers: &[&str]) -> (u16, String) {
             break;
         }
         out.push_str(&String::from_utf8_lossy(&buf[..n]));
-        if out.starts_with("HTTP/1.1 101") && out.contains("\r\n\r\n") {
+        if complete(&out) {
             break;
         }
     }
@@ -93,6 +93,22 @@ fn http(addr: SocketAddr, path: &str, headers: &[&str]) -> (u16, String) {
         .unwrap_or(0);
     let body = out.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
     (status, body)
+}
+
+/// Whether a response is all there: an upgrade keeps the connection open, and so does a refused
+/// upgrade (it asked for `Connection: Upgrade`, not `close`), so the length is what tells.
+fn complete(response: &str) -> bool {
+    let Some((head, body)) = response.split_once("\r\n\r\n") else {
+        return false;
+    };
+    if head.starts_with("HTTP/1.1 101") {
+        return true;
+    }
+    head.lines()
+        .filter_map(|l| l.split_once(':'))
+        .find(|(k, _)| k.eq_ignore_ascii_case("content-length"))
+        .and_then(|(_, v)| v.trim().parse::<usize>().ok())
+        .is_some_and(|len| body.len() >= len)
 }
 
 /// This machine's address on its default route, if it has one; loopback otherwise.
@@ -172,10 +188,7 @@ fn off_loopback_every_request_needs_the_token() {
     let foreign = ws_with(&["Origin: http://evil.example"]);
     assert_eq!(http(addr, &format!("/ws?token={token}"), &foreign).0, 403);
     let rebound = format!("Host: evil.example:{port}");
-    assert_eq!(
-        http(addr, &format!("/?token={token}"), &[&rebound]).0,
-        403
-    );
+    assert_eq!(http(addr, &format!("/?token={token}"), &[&rebound]).0, 403);
 }
 
 #[test]
@@ -272,7 +285,11 @@ fn a_busy_panel_address_is_refused_before_the_run() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(stderr.trim().lines().count(), 1, "one line: {stderr}");
     // Refused before the run: no report was printed.
-    assert!(out.stdout.is_empty(), "{}", String::from_utf8_lossy(&out.stdout));
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     drop(held);
 }
 

@@ -208,9 +208,7 @@ async fn page(State(state): State<AppState>) -> Response {
 /// the address itself and, on loopback, `localhost`; without the port when it is HTTP's own.
 fn allowed_hosts(local: SocketAddr) -> Vec<String> {
     let ip = match local.ip() {
-        IpAddr::V6(v6) => v6
-            .to_ipv4_mapped()
-            .map_or(IpAddr::V6(v6), IpAddr::V4),
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
         v4 => v4,
     };
     let port = local.port();
@@ -253,7 +251,9 @@ fn refusal(
         {
             return Some((
                 StatusCode::FORBIDDEN,
-                format!("refused: requests from another site's page (the panel is http://{ours})\n"),
+                format!(
+                    "refused: requests from another site's page (the panel is http://{ours})\n"
+                ),
             ));
         }
         None if websocket => {
@@ -306,15 +306,23 @@ async fn guard(
     req: Request,
     next: Next,
 ) -> Response {
-    let header_str = |name| req.headers().get(name).and_then(|v: &HeaderValue| v.to_str().ok());
-    let refused = refusal(
-        &allowed_hosts(local),
-        header_str(header::HOST),
-        header_str(header::ORIGIN),
-        req.uri().path() == "/ws",
-        token_of(&req),
-        &state,
-    );
+    // Decided in its own scope: a request body is not `Sync`, so no borrow of the request may
+    // live across the await below.
+    let refused = {
+        let header_str = |name| {
+            req.headers()
+                .get(name)
+                .and_then(|v: &HeaderValue| v.to_str().ok())
+        };
+        refusal(
+            &allowed_hosts(local),
+            header_str(header::HOST),
+            header_str(header::ORIGIN),
+            req.uri().path() == "/ws",
+            token_of(&req),
+            &state,
+        )
+    };
     match refused {
         Some(why) => why.into_response(),
         None => next.run(req).await,
@@ -542,4 +550,30 @@ pub fn register_teleop(registry: &mut Registry) {
         "oval",
         |_| Ok(Box::new(Teleop)),
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::allowed_hosts;
+
+    #[test]
+    fn the_allowed_hosts_are_the_reached_address_and_localhost_on_loopback() {
+        assert_eq!(
+            allowed_hosts("127.0.0.1:7878".parse().unwrap()),
+            ["127.0.0.1:7878", "localhost:7878"]
+        );
+        assert_eq!(
+            allowed_hosts("[::1]:7878".parse().unwrap()),
+            ["[::1]:7878", "localhost:7878"]
+        );
+        // A dual-stack wildcard bind reports IPv4 clients' interface as a mapped address.
+        assert_eq!(
+            allowed_hosts("[::ffff:192.168.1.5]:7878".parse().unwrap()),
+            ["192.168.1.5:7878"]
+        );
+        assert_eq!(
+            allowed_hosts("10.0.0.2:80".parse().unwrap()),
+            ["10.0.0.2:80", "10.0.0.2"]
+        );
+    }
 }
