@@ -747,6 +747,48 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_file_on_disk_is_a_complete_mcap_between_any_two_writes() {
+        let dir = std::env::temp_dir().join(format!("pocketfleet-whole-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("whole.mcap");
+        let mut w = mcap::WriteOptions::new()
+            .chunk_size(None)
+            .create(WholeRecords::new(File::create(&path).unwrap()))
+            .unwrap();
+        let s = w.add_schema("S", "jsonschema", b"{}").unwrap();
+        let c = w.add_channel(s, "/a", "json", &BTreeMap::new()).unwrap();
+        let on_disk = || {
+            let bytes = std::fs::read(&path).unwrap();
+            let n = mcap::MessageStream::new(&bytes)
+                .expect("a complete file")
+                .map(|m| m.expect("every message reads"))
+                .count();
+            (n, mcap::Summary::read(&bytes).unwrap().is_some())
+        };
+        w.flush().unwrap();
+        assert_eq!(on_disk(), (0, false));
+        for i in 0..20u32 {
+            let header = mcap::records::MessageHeader {
+                channel_id: c,
+                sequence: i,
+                log_time: u64::from(i),
+                publish_time: u64::from(i),
+            };
+            w.write_to_known_channel(&header, b"{}").unwrap();
+            // Until the chunk closes, nothing of it is in the file.
+            assert_eq!(on_disk().0, (i / 5 * 5) as usize);
+            if i % 5 == 4 {
+                w.flush().unwrap();
+                assert_eq!(on_disk(), (i as usize + 1, false));
+            }
+        }
+        w.finish().unwrap();
+        let len = w.into_inner().finish().unwrap();
+        assert_eq!(len, std::fs::metadata(&path).unwrap().len());
+        assert_eq!(on_disk(), (20, true));
+    }
+
+    #[test]
     fn settings_leaves_round_trip_through_text() {
         let leaves = leaves(&<protocol::Settings as protocol::Layout>::LAYOUT);
         let kp = leaves
