@@ -141,13 +141,15 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
 /// `make_reader(f).iter_messages()` yields, and the summary's message count (`None` without a
 /// summary). `None` when the package is missing, unless `POCKETFLEET_REQUIRE_PYMCAP=1`.
 fn python_reads(path: &Path) -> Option<(u64, Option<u64>)> {
-    const SCRIPT: &str = "import sys\n\
-from mcap.reader import make_reader\n\
-with open(sys.argv[1], 'rb') as f:\n\
-    n = sum(1 for _ in make_reader(f).iter_messages())\n\
-with open(sys.argv[1], 'rb') as f:\n\
-    s = make_reader(f).get_summary()\n\
-print(n, -1 if s is None or s.statistics is None else s.statistics.message_count)\n";
+    const SCRIPT: &str = "
+import sys
+from mcap.reader import make_reader
+with open(sys.argv[1], 'rb') as f:
+    n = sum(1 for _ in make_reader(f).iter_messages())
+with open(sys.argv[1], 'rb') as f:
+    s = make_reader(f).get_summary()
+print(n, -1 if s is None or s.statistics is None else s.statistics.message_count)
+";
     let have = Command::new("python3")
         .args(["-c", "import mcap.reader"])
         .stderr(Stdio::null())
@@ -276,10 +278,19 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
     );
     assert!(said.contains(" 0 differ"), "{said}");
 
-    // A copy cut in its last chunk, as a kill during a write could leave it: recovered up to
-    // the chunk before, next to the input by default.
+    // A copy torn inside its last chunk, as a kill during a write could leave it: recovered up
+    // to the chunk before, next to the input by default.
+    let mut last_chunk = 0;
+    let mut at = mcap::MAGIC.len();
+    while at + 9 <= bytes.len() {
+        if bytes[at] == mcap::records::op::CHUNK {
+            last_chunk = at;
+        }
+        at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+    }
+    assert!(last_chunk > 0);
     let cut = temp("cut-short.mcap");
-    std::fs::write(&cut, &bytes[..bytes.len() - 1000]).unwrap();
+    std::fs::write(&cut, &bytes[..last_chunk + 100]).unwrap();
     let out = coordinator(&["recover".as_ref(), cut.as_ref()]);
     let said = String::from_utf8_lossy(&out.stdout);
     println!("{said}");
