@@ -207,8 +207,16 @@ fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8]), String> {
         ));
     };
     let len = u64::from_le_bytes(len.try_into().unwrap_or_default());
-    match usize::try_from(len).ok().and_then(|l| rest.get(9..9 + l)) {
+    match usize::try_from(len)
+        .ok()
+        .and_then(|l| rest.get(9..).and_then(|body| body.get(..l)))
+    {
         Some(body) => Ok((rest[0], body)),
+        // What the mcap crate writes before it knows a streamed chunk's length.
+        None if len == u64::MAX => Err(format!(
+            "a {} record whose length was never filled in",
+            op_name(rest[0])
+        )),
         None => Err(format!(
             "a {} record of {len} bytes with {} bytes left in the file",
             op_name(rest[0]),
@@ -505,6 +513,24 @@ mod tests {
         assert!(e.to_string().contains("not an MCAP file"), "{e}");
         let e = recover(b"\x89MCAP0\r\n\x01", Cursor::new(Vec::new())).unwrap_err();
         assert!(e.to_string().contains("header"), "{e}");
+    }
+
+    #[test]
+    fn absurd_record_lengths_end_what_is_kept() {
+        let mut input = sample();
+        let data_end = mcap::read::footer(&input).unwrap().summary_start as usize - 13;
+        for len in [u64::MAX, u64::MAX - 3, 1 << 62] {
+            input.truncate(data_end);
+            input.push(op::MESSAGE);
+            input.extend_from_slice(&len.to_le_bytes());
+            input.extend_from_slice(b"rest");
+            let kept = recover(&input, Cursor::new(Vec::new())).unwrap();
+            assert_eq!(kept.messages, 30);
+            match kept.ending {
+                Ending::Cut { offset, .. } => assert_eq!(offset, data_end as u64),
+                other => panic!("{other:?}"),
+            }
+        }
     }
 
     #[test]

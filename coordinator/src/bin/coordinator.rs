@@ -95,8 +95,8 @@ enum Sub {
     Recover {
         /// The recording.
         file: PathBuf,
-        /// Where to write the complete file (default: FILE with `.recovered.mcap` for `.mcap`).
-        /// It may be FILE itself: the new file replaces it only once written whole.
+        /// Where to write the complete file (default: beside FILE, `run.mcap` gives
+        /// `run.recovered.mcap`). It may be FILE itself: the new file replaces it only once whole.
         #[arg(short, long, value_name = "OUT.mcap")]
         output: Option<PathBuf>,
     },
