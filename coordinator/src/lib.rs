@@ -18,6 +18,7 @@ pub mod observer;
 pub mod panel;
 pub mod plot;
 pub mod record;
+pub mod recover;
 pub mod replay;
 pub mod report;
 pub mod safety;

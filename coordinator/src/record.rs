@@ -1,17 +1,21 @@
 //! MCAP recording: every packet in both directions, the world model's snapshots, the robots'
 //! events and Foxglove scene messages, written by one thread so no actor ever waits on the disk.
 //!
-//! Chunks are closed at least every [`FLUSH_EVERY`], so a process killed mid-run leaves a file
-//! that MCAP readers can read up to its last closed chunk (they need to skip the missing footer).
+//! Chunks are built in memory and reach the file only whole: every [`FLUSH_EVERY`] (or every
+//! [`CHUNK_BYTES`]) the open chunk is closed and written in one piece, followed by a provisional
+//! end (a data end record, a footer without summary and the closing magic) that the next write
+//! overwrites. The file on disk is therefore a complete MCAP file at every moment: a process
+//! killed mid-run leaves one that any MCAP reader reads up to its last closed chunk, and
+//! `coordinator recover` adds the summary and indexes a clean finish would have written.
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{self, Cursor, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU16, AtomicU32, Ordering};
 use std::sync::{mpsc as std_mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context as _, Result};
 use futures::future::BoxFuture;
@@ -24,8 +28,10 @@ use tokio::sync::mpsc;
 
 /// The longest a message waits in memory before its chunk is closed and flushed to the file.
 pub const FLUSH_EVERY: Duration = Duration::from_millis(500);
-/// Chunks are also closed once they hold this many bytes.
-const CHUNK_BYTES: u64 = 256 * 1024;
+/// Chunks are also closed once they hold this many bytes, which bounds the memory they take.
+pub const CHUNK_BYTES: u64 = 256 * 1024;
+/// Bytes a message record adds to its payload inside a chunk (opcode, length, header).
+const MESSAGE_OVERHEAD: u64 = 1 + 8 + 2 + 4 + 8 + 8;
 /// Name of the metadata record that describes the run.
 pub const METADATA_NAME: &str = "pocketfleet.run";
 
@@ -257,8 +263,10 @@ impl Recorder {
         let mut writer = mcap::WriteOptions::new()
             .profile("")
             .library("pocketfleet-coordinator")
-            .chunk_size(Some(CHUNK_BYTES))
-            .create(BufWriter::new(file))
+            // The writer thread closes chunks itself, on time and on size, so that every close is
+            // also a write to the file.
+            .chunk_size(None)
+            .create(WholeRecords::new(file))
             .with_context(|| format!("writing MCAP header to {}", path.display()))?;
         writer.write_metadata(&mcap::records::Metadata {
             name: METADATA_NAME.into(),
@@ -271,7 +279,9 @@ impl Recorder {
             let channel = writer.add_channel(schema_id, topic.name(), "json", &BTreeMap::new())?;
             channels.insert(topic, channel);
         }
-        writer.flush()?;
+        writer
+            .flush()
+            .with_context(|| format!("writing {}", path.display()))?;
         let (tx, rx) = std_mpsc::channel::<Msg>();
         let base = info.start_unix_ns;
         let shown = path.display().to_string();
@@ -280,14 +290,20 @@ impl Recorder {
             .spawn(move || -> Result<RecordStats> {
                 let mut stats = RecordStats::default();
                 let mut sequence = 0u32;
-                let mut last_flush = std::time::Instant::now();
-                let mut dirty = false;
+                // When the open chunk must be on disk, and how big it is so far.
+                let mut due: Option<Instant> = None;
+                let mut chunk_bytes = 0u64;
                 loop {
-                    let msg = match rx.recv_timeout(FLUSH_EVERY / 4) {
-                        Ok(m) => Some(m),
-                        Err(std_mpsc::RecvTimeoutError::Timeout) => None,
-                        // Every sender gone without a finish (a panic unwinding): close the file.
-                        Err(std_mpsc::RecvTimeoutError::Disconnected) => Some(Msg::Finish),
+                    let msg = match due {
+                        Some(at) => {
+                            match rx.recv_timeout(at.saturating_duration_since(Instant::now())) {
+                                Ok(m) => Some(m),
+                                Err(std_mpsc::RecvTimeoutError::Timeout) => None,
+                                // Every sender gone without a finish (a panic unwinding): close the file.
+                                Err(std_mpsc::RecvTimeoutError::Disconnected) => Some(Msg::Finish),
+                            }
+                        }
+                        None => Some(rx.recv().unwrap_or(Msg::Finish)),
                     };
                     match msg {
                         Some(Msg::Write { topic, t_ns, data }) => {
@@ -303,22 +319,25 @@ impl Recorder {
                             if topic == Topic::Packets {
                                 stats.packets += 1;
                             }
-                            dirty = true;
+                            chunk_bytes += data.len() as u64 + MESSAGE_OVERHEAD;
+                            due.get_or_insert_with(|| Instant::now() + FLUSH_EVERY);
                         }
                         Some(Msg::Finish) => {
                             writer
                                 .finish()
                                 .with_context(|| format!("finishing {shown}"))?;
-                            let file = writer.into_inner();
-                            stats.bytes = file.get_ref().metadata().map(|m| m.len()).unwrap_or(0);
+                            stats.bytes = writer
+                                .into_inner()
+                                .finish()
+                                .with_context(|| format!("finishing {shown}"))?;
                             return Ok(stats);
                         }
                         None => {}
                     }
-                    if dirty && last_flush.elapsed() >= FLUSH_EVERY {
-                        writer.flush()?;
-                        last_flush = std::time::Instant::now();
-                        dirty = false;
+                    if chunk_bytes >= CHUNK_BYTES || due.is_some_and(|at| Instant::now() >= at) {
+                        writer.flush().with_context(|| format!("writing {shown}"))?;
+                        chunk_bytes = 0;
+                        due = None;
                     }
                 }
             })
@@ -391,6 +410,103 @@ impl Recorder {
                 .join()
                 .map_err(|_| anyhow!("the MCAP writer thread panicked"))?,
             None => Err(anyhow!("recording already finished")),
+        }
+    }
+}
+
+/// The bytes that end a recording between two writes: a data end record (no CRC), a footer
+/// that says there is no summary, and the closing magic. Readers take the file as complete.
+const PROVISIONAL_END: [u8; 50] = {
+    let mut end = [0u8; 50];
+    end[0] = mcap::records::op::DATA_END;
+    end[1] = 4; // record length, u64 little-endian; the CRC after it stays 0
+    end[13] = mcap::records::op::FOOTER;
+    end[14] = 20; // summary start, summary offset start (both 0: none), summary CRC
+    let mut i = 0;
+    while i < mcap::MAGIC.len() {
+        end[42 + i] = mcap::MAGIC[i];
+        i += 1;
+    }
+    end
+};
+
+/// The file under the MCAP writer: everything written stays in memory until the writer flushes
+/// (it does so only between records: after closing a chunk, and at its finish), then goes to the
+/// file in one write followed by [`PROVISIONAL_END`], which the next flush overwrites. A process
+/// killed at any moment leaves whole records and a valid end.
+struct WholeRecords {
+    file: File,
+    /// Bytes of the recording already in the file (the provisional end follows them).
+    written: u64,
+    pending: Cursor<Vec<u8>>,
+}
+
+impl WholeRecords {
+    fn new(file: File) -> Self {
+        Self {
+            file,
+            written: 0,
+            pending: Cursor::new(Vec::new()),
+        }
+    }
+
+    fn commit(&mut self, provisional: bool) -> io::Result<()> {
+        let len = self.pending.get_ref().len();
+        if self.pending.position() != len as u64 {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "the MCAP writer flushed while rewriting an earlier record",
+            ));
+        }
+        let mut bytes = std::mem::take(self.pending.get_mut());
+        if provisional {
+            bytes.extend_from_slice(&PROVISIONAL_END);
+        }
+        self.file.seek(SeekFrom::Start(self.written))?;
+        self.file.write_all(&bytes)?;
+        self.written += len as u64;
+        bytes.clear();
+        self.pending = Cursor::new(bytes);
+        Ok(())
+    }
+
+    /// Writes what is left without a provisional end and cuts the file there; returns its length.
+    fn finish(mut self) -> io::Result<u64> {
+        self.commit(false)?;
+        self.file.set_len(self.written)?;
+        self.file.flush()?;
+        Ok(self.written)
+    }
+}
+
+impl Write for WholeRecords {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.pending.write(buf)
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.commit(true)
+    }
+}
+
+impl Seek for WholeRecords {
+    fn seek(&mut self, pos: SeekFrom) -> io::Result<u64> {
+        let here = self.written + self.pending.position();
+        let end = self.written + self.pending.get_ref().len() as u64;
+        let target = match pos {
+            SeekFrom::Start(p) => Some(p),
+            SeekFrom::End(d) => end.checked_add_signed(d),
+            SeekFrom::Current(d) => here.checked_add_signed(d),
+        };
+        match target {
+            Some(t) if t >= self.written => {
+                self.pending.set_position(t - self.written);
+                Ok(t)
+            }
+            _ => Err(io::Error::new(
+                io::ErrorKind::Unsupported,
+                "the MCAP writer sought back into bytes already in the file",
+            )),
         }
     }
 }
@@ -629,6 +745,49 @@ pub fn fox_pose(x: f64, y: f64, theta: f64) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_file_on_disk_is_a_complete_mcap_between_any_two_writes() {
+        let dir = std::env::temp_dir().join(format!("pocketfleet-whole-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("whole.mcap");
+        let mut w = mcap::WriteOptions::new()
+            .chunk_size(None)
+            .create(WholeRecords::new(File::create(&path).unwrap()))
+            .unwrap();
+        let s = w.add_schema("S", "jsonschema", b"{}").unwrap();
+        let c = w.add_channel(s, "/a", "json", &BTreeMap::new()).unwrap();
+        let on_disk = || {
+            let bytes = std::fs::read(&path).unwrap();
+            let n = mcap::MessageStream::new(&bytes)
+                .expect("a complete file")
+                .collect::<Result<Vec<_>, _>>()
+                .expect("every message reads")
+                .len();
+            (n, mcap::Summary::read(&bytes).unwrap().is_some())
+        };
+        w.flush().unwrap();
+        assert_eq!(on_disk(), (0, false));
+        for i in 0..20u32 {
+            let header = mcap::records::MessageHeader {
+                channel_id: c,
+                sequence: i,
+                log_time: u64::from(i),
+                publish_time: u64::from(i),
+            };
+            w.write_to_known_channel(&header, b"{}").unwrap();
+            // Until the chunk closes, nothing of it is in the file.
+            assert_eq!(on_disk().0, (i / 5 * 5) as usize);
+            if i % 5 == 4 {
+                w.flush().unwrap();
+                assert_eq!(on_disk(), (i as usize + 1, false));
+            }
+        }
+        w.finish().unwrap();
+        let len = w.into_inner().finish().unwrap();
+        assert_eq!(len, std::fs::metadata(&path).unwrap().len());
+        assert_eq!(on_disk(), (20, true));
+    }
 
     #[test]
     fn settings_leaves_round_trip_through_text() {

@@ -40,8 +40,9 @@ pub struct Recording {
     pub end: Duration,
 }
 
-/// Reads a recording; a file whose end is missing (a killed recorder) is read up to its last
-/// whole chunk and says so in [`Recording::truncated`].
+/// Reads a recording. A killed recorder leaves a complete file without summary, read whole; a
+/// file whose tail is torn (killed during a write, or cut off) is read up to its last whole chunk
+/// and says so in [`Recording::truncated`].
 ///
 /// # Errors
 /// A file that is not MCAP, lacks the run's metadata, or holds malformed messages.

@@ -1,6 +1,7 @@
 //! Recording and replay: a recorded `cooperative_push` run replays to the same world snapshots, the
-//! file is readable MCAP with Foxglove scene messages, and a recorder killed mid-run leaves a file
-//! that reads up to its last flushed chunk.
+//! file is readable MCAP with Foxglove scene messages, a recorder killed mid-run leaves a complete
+//! file up to its last flushed chunk (checked with Python's reference reader too when it is
+//! installed), and `coordinator recover` gives such a file its summary.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -101,6 +102,29 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
         serde_json::json!(recorded.report.verdict.success)
     );
 
+    // A finished recording recovers to the same messages, chunk for chunk.
+    let again = temp("push-recovered.mcap");
+    let kept = coordinator::recover::recover_file(&path, &again).unwrap();
+    assert_eq!(kept.ending, coordinator::recover::Ending::Complete);
+    assert_eq!(kept.messages, stats.messages);
+    let (before, after) = (
+        std::fs::read(&path).unwrap(),
+        std::fs::read(&again).unwrap(),
+    );
+    let summaries = [&before, &after].map(|b| mcap::Summary::read(b).unwrap().unwrap());
+    assert_eq!(summaries[0].stats, summaries[1].stats);
+    assert_eq!(
+        summaries[0].chunk_indexes.len(),
+        summaries[1].chunk_indexes.len()
+    );
+    assert_eq!(
+        messages(&again)
+            .into_iter()
+            .map(|(t, _)| t)
+            .collect::<Vec<_>>(),
+        all.iter().map(|(t, _)| t.clone()).collect::<Vec<_>>()
+    );
+
     // Replayed through fresh robot actors, the supervisor and the behaviour.
     let replayed = run(
         plan("cooperative_push", Transport::Replay(path.clone())),
@@ -113,8 +137,61 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     assert!(check.exact(), "{check}");
 }
 
+/// What Python's reference MCAP reader (PyPI `mcap`) makes of a file: the messages
+/// `make_reader(f).iter_messages()` yields, and the summary's message count (`None` without a
+/// summary). `None` when the package is missing, unless `POCKETFLEET_REQUIRE_PYMCAP=1`.
+fn python_reads(path: &Path) -> Option<(u64, Option<u64>)> {
+    const SCRIPT: &str = "
+import sys
+from mcap.reader import make_reader
+with open(sys.argv[1], 'rb') as f:
+    n = sum(1 for _ in make_reader(f).iter_messages())
+with open(sys.argv[1], 'rb') as f:
+    s = make_reader(f).get_summary()
+print(n, -1 if s is None or s.statistics is None else s.statistics.message_count)
+";
+    let have = Command::new("python3")
+        .args(["-c", "import mcap.reader"])
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !have {
+        assert!(
+            std::env::var("POCKETFLEET_REQUIRE_PYMCAP").as_deref() != Ok("1"),
+            "POCKETFLEET_REQUIRE_PYMCAP=1 but python3 cannot import mcap (pip install mcap)"
+        );
+        println!("skipped the Python reader's check: python3 cannot import mcap");
+        return None;
+    }
+    let out = Command::new("python3")
+        .args(["-c", SCRIPT])
+        .arg(path)
+        .output()
+        .expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "Python's mcap reader failed on {}: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut words = text.split_whitespace().map(|w| w.parse::<i64>().unwrap());
+    let (n, summary) = (words.next().unwrap(), words.next().unwrap());
+    Some((n as u64, u64::try_from(summary).ok()))
+}
+
+fn coordinator(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    let out = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args(args)
+        .output()
+        .expect("coordinator runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    out
+}
+
 #[test]
-fn a_killed_recorder_leaves_a_file_readable_to_its_last_chunk() {
+fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
     let path = temp("killed.mcap");
     let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
         .args(["--behaviour", "teleop", "--duration", "3000", "--record"])
@@ -144,23 +221,109 @@ fn a_killed_recorder_leaves_a_file_readable_to_its_last_chunk() {
     child.kill().unwrap(); // SIGKILL: no chance to finish the file.
     child.wait().unwrap();
 
+    // The file on disk only ever grows by whole chunks followed by a provisional end, so even a
+    // strict reader reads all of it; only the summary is missing.
     let bytes = std::fs::read(&path).unwrap();
-    assert!(
-        mcap::MessageStream::new(&bytes)
-            .map(|s| s.collect::<Result<Vec<_>, _>>().is_err())
-            .unwrap_or(true),
-        "a killed recording has no footer, so a strict reader must notice"
-    );
-    let lenient =
-        mcap::MessageStream::new_with_options(&bytes, mcap::read::Options::IgnoreEndMagic.into())
-            .unwrap();
-    let read = lenient.take_while(|m| m.is_ok()).count();
-    assert!(read > 1000, "only {read} messages readable");
+    let all = mcap::MessageStream::new(&bytes)
+        .expect("a killed recording is a complete MCAP file")
+        .collect::<Result<Vec<_>, _>>()
+        .expect("every message of a killed recording reads")
+        .len() as u64;
+    assert!(all > 1000, "only {all} messages");
+    assert!(mcap::Summary::read(&bytes).unwrap().is_none());
 
-    let recording = coordinator::replay::load(&path).expect("load reads up to the cut");
+    // (a) Our replay reads it.
+    let recording = coordinator::replay::load(&path).expect("load reads a killed recording");
     assert!(recording.counts["/packets"] > 500, "{:?}", recording.counts);
     assert!(recording.counts["/world"] > 5, "{:?}", recording.counts);
+    assert_eq!(recording.counts.values().sum::<u64>(), all);
+    assert_eq!(recording.truncated, None);
     assert_eq!(recording.info.behaviour, "teleop");
+
+    // (b) So does the reference reader.
+    if let Some((read, summary)) = python_reads(&path) {
+        assert_eq!((read, summary), (all, None));
+    }
+
+    // (c) `recover` adds the summary and indexes, keeping every message.
+    let fixed = temp("killed-fixed.mcap");
+    let out = coordinator(&[
+        "recover".as_ref(),
+        path.as_ref(),
+        "-o".as_ref(),
+        fixed.as_ref(),
+    ]);
+    let said = String::from_utf8_lossy(&out.stdout);
+    println!("{said}");
+    assert!(out.status.success(), "{said}");
+    assert!(said.contains(&format!("kept {all} messages")), "{said}");
+    assert!(said.contains("no tail was cut"), "{said}");
+    let recovered = std::fs::read(&fixed).unwrap();
+    let summary = mcap::Summary::read(&recovered)
+        .unwrap()
+        .expect("a recovered file has a summary");
+    assert_eq!(summary.stats.map(|s| s.message_count), Some(all));
+    assert!(!summary.chunk_indexes.is_empty());
+    if let Some((read, summary)) = python_reads(&fixed) {
+        assert_eq!((read, summary), (all, Some(all)));
+    }
+    // Replayed like any finished recording.
+    let out = coordinator(&["replay".as_ref(), fixed.as_ref()]);
+    let said = String::from_utf8_lossy(&out.stdout);
+    println!("{said}");
+    assert!(
+        out.status.success(),
+        "{said}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(said.contains(" 0 differ"), "{said}");
+
+    // A copy torn inside its last chunk, as a kill during a write could leave it: recovered up
+    // to the chunk before, next to the input by default.
+    let mut last_chunk = 0;
+    let mut at = mcap::MAGIC.len();
+    while at + 9 <= bytes.len() {
+        if bytes[at] == mcap::records::op::CHUNK {
+            last_chunk = at;
+        }
+        at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+    }
+    assert!(last_chunk > 0);
+    let cut = temp("cut-short.mcap");
+    std::fs::write(&cut, &bytes[..last_chunk + 100]).unwrap();
+    let out = coordinator(&["recover".as_ref(), cut.as_ref()]);
+    let said = String::from_utf8_lossy(&out.stdout);
+    println!("{said}");
+    assert!(out.status.success(), "{said}");
+    assert!(said.contains("the tail was cut"), "{said}");
+    let default_out = temp("cut-short.recovered.mcap");
+    let kept = mcap::MessageStream::new(&std::fs::read(&default_out).unwrap())
+        .unwrap()
+        .collect::<Result<Vec<_>, _>>()
+        .unwrap()
+        .len() as u64;
+    assert!(kept > 0 && kept < all, "kept {kept} of {all}");
+    if let Some((read, summary)) = python_reads(&default_out) {
+        assert_eq!((read, summary), (kept, Some(kept)));
+    }
+}
+
+#[test]
+fn recover_refuses_empty_and_foreign_files_clearly() {
+    let empty = temp("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    let out = coordinator(&["recover".as_ref(), empty.as_ref()]);
+    assert_eq!(out.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("empty"), "{said}");
+    let text = temp("notes.mcap");
+    std::fs::write(&text, b"just some notes\n").unwrap();
+    let out = coordinator(&["recover".as_ref(), text.as_ref()]);
+    assert_eq!(out.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("not an MCAP file"), "{said}");
+    assert!(!temp("notes.recovered.mcap").exists());
+    assert!(!temp("notes.recovered.mcap.partial").exists());
 }
 
 #[test]

@@ -89,6 +89,17 @@ enum Sub {
         #[arg(long, value_name = "FILE.svg")]
         plot: Option<PathBuf>,
     },
+    /// Rewrite a recording whose recorder never finished (killed, or cut off mid-record) as a
+    /// complete MCAP file with summary and indexes, keeping every whole chunk; reports what it
+    /// kept and whether the tail was cut. The input is left as it is unless -o names it.
+    Recover {
+        /// The recording.
+        file: PathBuf,
+        /// Where to write the complete file (default: beside FILE, `run.mcap` gives
+        /// `run.recovered.mcap`). It may be FILE itself: the new file replaces it only once whole.
+        #[arg(short, long, value_name = "OUT.mcap")]
+        output: Option<PathBuf>,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -175,6 +186,7 @@ fn main() -> ExitCode {
     }
     let result = match &args.command {
         Some(Sub::Replay { file, panel, plot }) => replay(file, *panel, plot.as_deref(), &registry),
+        Some(Sub::Recover { file, output }) => recover(file, output.as_deref()),
         None => run(&args, &registry),
     };
     match result {
@@ -247,6 +259,20 @@ fn finish(
         println!("trajectories: {}", path.display());
     }
     Ok(())
+}
+
+fn recover(file: &std::path::Path, output: Option<&std::path::Path>) -> Result<bool> {
+    let output = output.map_or_else(
+        || coordinator::recover::default_output(file),
+        std::path::Path::to_path_buf,
+    );
+    let kept = coordinator::recover::recover_file(file, &output)?;
+    println!(
+        "recovered {} into {}: {kept}",
+        file.display(),
+        output.display()
+    );
+    Ok(true)
 }
 
 fn replay(
