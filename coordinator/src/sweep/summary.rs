@@ -231,7 +231,7 @@ pub fn summarise(definition: &Definition, results: &[RunResult]) -> Summary {
         }
     }
     // Stable: ties keep the order of their first run.
-    failures.sort_by(|a, b| b.count.cmp(&a.count));
+    failures.sort_by_key(|g| std::cmp::Reverse(g.count));
     Summary {
         behaviour: definition.behaviour.clone(),
         keys,
