@@ -211,7 +211,7 @@ fn shards_merge_into_the_unsharded_summary_and_runs_repeat_exactly() {
     let again = dir("again");
     let (a, b, merged) = (dir("shard1"), dir("shard2"), dir("merged"));
     run_ok(SWEEP, &whole, &["--jobs", "2"]);
-    run_ok(SWEEP, &again, &["--jobs", "2"]);
+    run_ok(SWEEP, &again, &["--jobs", "2", "--record-failures"]);
     run_ok(SWEEP, &a, &["--jobs", "2", "--shard", "1/2"]);
     run_ok(SWEEP, &b, &["--jobs", "2", "--shard", "2/2"]);
     assert_eq!(lines(&a.join("results.jsonl")).len(), 5);
@@ -222,6 +222,18 @@ fn shards_merge_into_the_unsharded_summary_and_runs_repeat_exactly() {
         sorted(lines(&whole.join("results.jsonl"))),
         sorted(lines(&again.join("results.jsonl")))
     );
+    // Recording changes no result, and only the failed runs keep theirs.
+    let kept: BTreeSet<String> = std::fs::read_dir(again.join("failures"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    let failed: BTreeSet<String> = json_lines(&again.join("results.jsonl"))
+        .iter()
+        .filter(|r| r["outcome"] != "success")
+        .map(|r| format!("{}.mcap", r["id"].as_str().unwrap()))
+        .collect();
+    assert_eq!(kept, failed);
+    assert_eq!(kept.len(), 5);
     let wall = json_lines(&whole.join("timing.jsonl"));
     assert!(wall.iter().all(|t| t["wall_s"].as_f64().unwrap() > 0.0));
 
