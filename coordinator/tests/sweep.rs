@@ -268,6 +268,13 @@ fn bad_input_is_refused_with_the_reason() {
     *reversed.last_mut().unwrap() = "5..1";
     refused(&reversed, &[], &["5..1", "empty"]);
     refused(SWEEP, &["--shard", "3/2"], &["3/2", "between 1 and N"]);
+    let mut unknown: Vec<&str> = SWEEP.to_vec();
+    unknown[2] = "square_dance";
+    refused(
+        &unknown,
+        &[],
+        &["unknown behaviour \"square_dance\"", "square_walk"],
+    );
     assert!(!out.exists(), "nothing is written for a refused sweep");
 
     let one = [

@@ -86,10 +86,12 @@ pub enum SweepSub {
     },
 }
 
-/// Runs `coordinator sweep …`; `Ok(true)` once every run of the sweep (or shard) has a result.
+/// Runs `coordinator sweep …` over the built-in behaviours, each run a child process of this
+/// binary; `Ok(true)` once every run of the sweep (or shard) has a result.
 ///
 /// # Errors
-/// Bad arguments, a directory holding another sweep, or files that cannot be written.
+/// Bad arguments, an unknown behaviour, a directory holding another sweep, or files that cannot
+/// be written.
 pub fn main(cmd: &SweepCommand) -> Result<bool> {
     if let Some(SweepSub::Merge { dirs, out }) = &cmd.command {
         merge(dirs, out)?;
@@ -97,6 +99,16 @@ pub fn main(cmd: &SweepCommand) -> Result<bool> {
     }
     let a = &cmd.args;
     let definition = Definition::from_args(a)?;
+    // Every run would fail the same way: say so once instead.
+    let mut registry = behaviours::Registry::builtin();
+    crate::panel::register_teleop(&mut registry);
+    if registry.get(&definition.behaviour).is_none() {
+        bail!(
+            "unknown behaviour {:?}; known: {}",
+            definition.behaviour,
+            registry.names().join(", ")
+        );
+    }
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
     let jobs = match a.jobs {
         Some(0) => bail!("--jobs must be at least 1"),
