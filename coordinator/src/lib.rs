@@ -10,6 +10,7 @@
 //! - `observer`, `instruments`: the actor that feeds the recorder, the panel and plots.
 //! - `panel`: the live web control panel.
 //! - `plot`: the trajectory plot of a run.
+//! - `sweep`: batches of runs over seeds and settings, with their statistics.
 #![warn(missing_docs)]
 
 pub mod experiment;
@@ -23,6 +24,7 @@ pub mod replay;
 pub mod report;
 pub mod safety;
 pub mod supervisor;
+pub mod sweep;
 pub mod world_model;
 
 pub use experiment::{load_world, run, run_with, LinkFault, Plan, Transport};

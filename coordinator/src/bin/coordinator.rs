@@ -19,7 +19,7 @@ use simulator::world::presets;
 #[command(
     version,
     subcommand_negates_reqs = true,
-    after_help = "Examples:\n  coordinator --behaviour square_walk --robots 3\n  coordinator --behaviour cooperative_push --panel --record push.mcap\n  coordinator replay push.mcap --panel\n  coordinator --behaviour square_walk --world my_world.toml --seed 7 --json-report out.json\n  coordinator --transport tcp --robots tcp://127.0.0.1:7001,tcp://127.0.0.1:7002 --behaviour square_walk\n  coordinator --list-behaviours"
+    after_help = "Examples:\n  coordinator --behaviour square_walk --robots 3\n  coordinator --behaviour cooperative_push --panel --record push.mcap\n  coordinator replay push.mcap --panel\n  coordinator sweep --behaviour line_follow --seeds 1..100 --param laps=1,2 --out laps\n  coordinator --behaviour square_walk --world my_world.toml --seed 7 --json-report out.json\n  coordinator --transport tcp --robots tcp://127.0.0.1:7001,tcp://127.0.0.1:7002 --behaviour square_walk\n  coordinator --list-behaviours"
 )]
 struct Args {
     /// The behaviour to run (see --list-behaviours).
@@ -100,6 +100,9 @@ enum Sub {
         #[arg(short, long, value_name = "OUT.mcap")]
         output: Option<PathBuf>,
     },
+    /// Run a behaviour over seeds and settings, each run its own experiment, and summarise the
+    /// success rate and metrics (`coordinator sweep merge` combines shards).
+    Sweep(coordinator::sweep::SweepCommand),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -187,6 +190,7 @@ fn main() -> ExitCode {
     let result = match &args.command {
         Some(Sub::Replay { file, panel, plot }) => replay(file, *panel, plot.as_deref(), &registry),
         Some(Sub::Recover { file, output }) => recover(file, output.as_deref()),
+        Some(Sub::Sweep(sweep)) => coordinator::sweep::main(sweep),
         None => run(&args, &registry),
     };
     match result {

@@ -1,0 +1,487 @@
+//! `coordinator sweep`: a batch of independent, deterministic experiments over the cross product of
+//! seeds, worlds, robot counts and behaviour parameters, each run a child process of this binary;
+//! results are appended as JSON Lines as runs end, so a sweep resumes, shards and merges, and a
+//! summary gives each combination's success rate (Wilson 95 % interval) and metric statistics.
+//!
+//! - `runner`: the worker pool of child runs, progress, resume and shards.
+//! - `store`: the results and timing files (JSON Lines).
+//! - `summary`: per-combination statistics, failure reasons, `summary.md` and `summary.csv`.
+//! - `plots`: success rate against each swept coordinate, and metric histograms, as SVG.
+
+pub mod plots;
+pub mod runner;
+pub mod store;
+pub mod summary;
+
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+
+pub use runner::{merge, sweep, Options};
+
+/// `coordinator sweep`: the arguments of a sweep, or its `merge` subcommand.
+#[derive(clap::Args, Debug)]
+#[command(
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
+    after_help = "Examples:\n  coordinator sweep --behaviour line_follow --seeds 1..100 --param laps=1,2,3 --out sweep-laps\n  coordinator sweep --behaviour traffic_control --seeds 1..50 --robots 4,8 --shard 2/4 --record-failures --out traffic\n  coordinator sweep merge traffic-1 traffic-2 --out traffic"
+)]
+pub struct SweepCommand {
+    /// The sweep.
+    #[command(flatten)]
+    pub args: SweepArgs,
+    /// `merge`, instead of running a sweep.
+    #[command(subcommand)]
+    pub command: Option<SweepSub>,
+}
+
+/// A sweep's arguments.
+#[derive(clap::Args, Debug)]
+pub struct SweepArgs {
+    /// The behaviour every run runs.
+    #[arg(long, required = true)]
+    pub behaviour: Option<String>,
+    /// Seeds: inclusive ranges and single seeds, comma-separated (`1..100`, `1,5,9`, `1..3,10`).
+    #[arg(long, required = true)]
+    pub seeds: Option<String>,
+    /// A behaviour parameter and its values, `key=v1,v2,v3` (repeatable).
+    #[arg(long = "param", value_name = "KEY=V1,V2")]
+    pub params: Vec<String>,
+    /// Worlds to run in, comma-separated or repeated (default: the behaviour's own).
+    #[arg(long = "world", value_name = "W1,W2")]
+    pub worlds: Vec<String>,
+    /// Numbers of simulated robots, comma-separated or repeated (default: the world's own).
+    #[arg(long = "robots", value_name = "N1,N2")]
+    pub robots: Vec<String>,
+    /// Each run's time limit in simulated seconds (default: the coordinator's).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Runs at a time (default: the number of cores).
+    #[arg(long)]
+    pub jobs: Option<usize>,
+    /// Run only every N-th run, starting at the K-th (`K/N`), to split a sweep between machines.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<String>,
+    /// Keep an MCAP recording of each failed run in DIR/failures (for `coordinator replay`).
+    #[arg(long)]
+    pub record_failures: bool,
+    /// The sweep's directory: run reports, logs, results.jsonl and the summary.
+    #[arg(long, value_name = "DIR", required = true)]
+    pub out: Option<PathBuf>,
+}
+
+/// `coordinator sweep merge`.
+#[derive(clap::Subcommand, Debug)]
+pub enum SweepSub {
+    /// Combine the results of sweep directories (shards of one sweep) and summarise them.
+    Merge {
+        /// The directories to merge.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Where the merged results and summary go.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
+}
+
+/// Runs `coordinator sweep …` over the built-in behaviours, each run a child process of this
+/// binary; `Ok(true)` once every run of the sweep (or shard) has a result.
+///
+/// # Errors
+/// Bad arguments, an unknown behaviour, a directory holding another sweep, or files that cannot
+/// be written.
+pub fn main(cmd: &SweepCommand) -> Result<bool> {
+    if let Some(SweepSub::Merge { dirs, out }) = &cmd.command {
+        merge(dirs, out)?;
+        return Ok(true);
+    }
+    let a = &cmd.args;
+    let definition = Definition::from_args(a)?;
+    // Every run would fail the same way: say so once instead.
+    let mut registry = behaviours::Registry::builtin();
+    crate::panel::register_teleop(&mut registry);
+    if registry.get(&definition.behaviour).is_none() {
+        bail!(
+            "unknown behaviour {:?}; known: {}",
+            definition.behaviour,
+            registry.names().join(", ")
+        );
+    }
+    let shard = a.shard.as_deref().map(parse_shard).transpose()?;
+    let jobs = match a.jobs {
+        Some(0) => bail!("--jobs must be at least 1"),
+        Some(n) => n,
+        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
+    let options = Options {
+        out: a.out.clone().context("--out is required")?,
+        jobs,
+        shard,
+        record_failures: a.record_failures,
+        exe: std::env::current_exe().context("finding this program to run each experiment")?,
+    };
+    sweep(&definition, &options)?;
+    Ok(true)
+}
+
+/// What a sweep is: the lists whose cross product is its set of runs. Stored as DIR/sweep.json.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Definition {
+    /// The behaviour.
+    pub behaviour: String,
+    /// Worlds (empty: the behaviour's own).
+    pub worlds: Vec<String>,
+    /// Robot counts (empty: the world's own).
+    pub robots: Vec<usize>,
+    /// Behaviour parameters and their values, in the order given.
+    pub params: Vec<(String, Vec<String>)>,
+    /// Seeds, in the order given.
+    pub seeds: Vec<u64>,
+    /// Each run's time limit, simulated seconds (none: the coordinator's default).
+    pub duration_s: Option<f64>,
+}
+
+/// One run of a sweep: its coordinates.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunSpec {
+    /// Place in the sweep's fixed run order.
+    pub index: usize,
+    /// World, when the sweep lists worlds.
+    pub world: Option<String>,
+    /// Robot count, when the sweep lists them.
+    pub robots: Option<usize>,
+    /// Parameter values, in the sweep's parameter order.
+    pub params: Vec<(String, String)>,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl RunSpec {
+    /// Every coordinate but the seed, as `key=value` pairs in the sweep's order.
+    pub fn coordinates(&self) -> Vec<(String, String)> {
+        let mut c = Vec::new();
+        if let Some(w) = &self.world {
+            c.push(("world".to_string(), w.clone()));
+        }
+        if let Some(n) = self.robots {
+            c.push(("robots".to_string(), n.to_string()));
+        }
+        c.extend(self.params.iter().cloned());
+        c
+    }
+
+    /// The combination this run belongs to: its coordinates but the seed (`all` when none).
+    pub fn combination(&self) -> String {
+        combination_key(&self.coordinates())
+    }
+
+    /// The run's stable, readable id, e.g. `world=junction,robots=8,laps=2,seed=7`.
+    pub fn id(&self) -> String {
+        let mut parts: Vec<String> = self
+            .coordinates()
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect();
+        parts.push(format!("seed={}", self.seed));
+        parts.join(",")
+    }
+
+    /// The id made safe as a file name (a world given as a path keeps only harmless characters).
+    pub fn file_stem(&self) -> String {
+        file_stem(&self.id())
+    }
+}
+
+/// A combination's key from its coordinates.
+pub fn combination_key(coordinates: &[(String, String)]) -> String {
+    if coordinates.is_empty() {
+        return "all".to_string();
+    }
+    coordinates
+        .iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// A run id as a file name.
+pub fn file_stem(id: &str) -> String {
+    id.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || "=,.-_+".contains(c) {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+impl Definition {
+    /// The definition from the command line.
+    ///
+    /// # Errors
+    /// An empty or malformed list, a duplicate, or a non-positive duration, named.
+    pub fn from_args(a: &SweepArgs) -> Result<Self> {
+        let behaviour = a.behaviour.clone().context("--behaviour is required")?;
+        let seeds = parse_seeds(a.seeds.as_deref().context("--seeds is required")?)?;
+        let mut params: Vec<(String, Vec<String>)> = Vec::new();
+        for p in &a.params {
+            let (k, vs) = parse_param_list(p)?;
+            if params.iter().any(|(q, _)| *q == k) {
+                bail!("--param {k}: the parameter is given twice; list its values in one --param {k}=v1,v2");
+            }
+            params.push((k, vs));
+        }
+        let worlds = parse_list("--world", &a.worlds)?;
+        let robots = parse_list("--robots", &a.robots)?
+            .iter()
+            .map(|s| match s.parse::<usize>() {
+                Ok(n) if n > 0 => Ok(n),
+                _ => bail!("--robots {s:?}: expected a number of simulated robots (1 or more)"),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        if let Some(d) = a.duration {
+            if !d.is_finite() || d <= 0.0 {
+                bail!("--duration must be a positive number of seconds");
+            }
+        }
+        Ok(Self {
+            behaviour,
+            worlds,
+            robots,
+            params,
+            seeds,
+            duration_s: a.duration,
+        })
+    }
+
+    /// The coordinates swept (with more than one value), in order; the seed is not one.
+    pub fn swept(&self) -> Vec<(String, Vec<String>)> {
+        let mut s = Vec::new();
+        if self.worlds.len() > 1 {
+            s.push(("world".to_string(), self.worlds.clone()));
+        }
+        if self.robots.len() > 1 {
+            s.push((
+                "robots".to_string(),
+                self.robots.iter().map(ToString::to_string).collect(),
+            ));
+        }
+        s.extend(self.params.iter().filter(|(_, v)| v.len() > 1).cloned());
+        s
+    }
+
+    /// Every run, in the sweep's fixed order: worlds, robot counts, then parameters in the order
+    /// given, the seed varying fastest.
+    pub fn runs(&self) -> Vec<RunSpec> {
+        let worlds: Vec<Option<String>> = if self.worlds.is_empty() {
+            vec![None]
+        } else {
+            self.worlds.iter().cloned().map(Some).collect()
+        };
+        let robots: Vec<Option<usize>> = if self.robots.is_empty() {
+            vec![None]
+        } else {
+            self.robots.iter().copied().map(Some).collect()
+        };
+        let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
+        for (k, vs) in &self.params {
+            combos = combos
+                .into_iter()
+                .flat_map(|c| {
+                    vs.iter().map(move |v| {
+                        let mut c = c.clone();
+                        c.push((k.clone(), v.clone()));
+                        c
+                    })
+                })
+                .collect();
+        }
+        let mut runs = Vec::new();
+        for w in &worlds {
+            for n in &robots {
+                for c in &combos {
+                    for &seed in &self.seeds {
+                        runs.push(RunSpec {
+                            index: runs.len(),
+                            world: w.clone(),
+                            robots: *n,
+                            params: c.clone(),
+                            seed,
+                        });
+                    }
+                }
+            }
+        }
+        runs
+    }
+}
+
+/// Parses seeds: inclusive ranges `A..B` and single seeds, comma-separated.
+///
+/// # Errors
+/// An empty list, an empty or reversed range, a bad number, or a seed listed twice.
+pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
+    let mut seeds = Vec::new();
+    let mut seen = BTreeSet::new();
+    for part in s.split(',').map(str::trim) {
+        let num = |t: &str| {
+            t.trim()
+                .parse::<u64>()
+                .with_context(|| format!("--seeds {s:?}: {t:?} is not a seed (a whole number)"))
+        };
+        let (a, b) = match part.split_once("..") {
+            Some((a, b)) => (num(a)?, num(b.strip_prefix('=').unwrap_or(b))?),
+            None => {
+                let n = num(part)?;
+                (n, n)
+            }
+        };
+        if a > b {
+            bail!("--seeds {s:?}: the range {part} is empty (ranges are A..B with A <= B, both included)");
+        }
+        if b - a >= 10_000_000 {
+            bail!("--seeds {s:?}: the range {part} is too long for one sweep");
+        }
+        for seed in a..=b {
+            if !seen.insert(seed) {
+                bail!("--seeds {s:?}: seed {seed} is listed twice");
+            }
+            seeds.push(seed);
+        }
+    }
+    Ok(seeds)
+}
+
+/// Parses `key=v1,v2,…`.
+///
+/// # Errors
+/// No `=`, an empty key or value, a reserved key, or a value listed twice.
+pub fn parse_param_list(s: &str) -> Result<(String, Vec<String>)> {
+    let (k, vs) = s
+        .split_once('=')
+        .with_context(|| format!("--param {s:?}: expected key=v1,v2,…"))?;
+    let k = k.trim();
+    if k.is_empty() {
+        bail!("--param {s:?}: the key is empty");
+    }
+    if ["seed", "world", "robots"].contains(&k) {
+        bail!(
+            "--param {s:?}: {k} is not a behaviour parameter; use --{k}{}",
+            if k == "seed" { "s" } else { "" }
+        );
+    }
+    let values = parse_list(&format!("--param {k}"), &[vs.to_string()])?;
+    Ok((k.to_string(), values))
+}
+
+/// Splits repeated, comma-separated values.
+fn parse_list(flag: &str, items: &[String]) -> Result<Vec<String>> {
+    let mut out: Vec<String> = Vec::new();
+    for item in items {
+        for v in item.split(',').map(str::trim) {
+            if v.is_empty() {
+                bail!("{flag} {item:?}: an empty value");
+            }
+            if out.iter().any(|o| o == v) {
+                bail!("{flag}: {v:?} is listed twice");
+            }
+            out.push(v.to_string());
+        }
+    }
+    Ok(out)
+}
+
+/// Parses `K/N` (1 ≤ K ≤ N) into (K, N).
+///
+/// # Errors
+/// Not two numbers, or K outside 1..=N.
+pub fn parse_shard(s: &str) -> Result<(usize, usize)> {
+    let (k, n) = s
+        .split_once('/')
+        .with_context(|| format!("--shard {s:?}: expected K/N, e.g. 2/4"))?;
+    let (k, n) = match (k.trim().parse::<usize>(), n.trim().parse::<usize>()) {
+        (Ok(k), Ok(n)) => (k, n),
+        _ => bail!("--shard {s:?}: expected K/N with whole numbers, e.g. 2/4"),
+    };
+    if n == 0 || k == 0 || k > n {
+        bail!("--shard {s:?}: K must be between 1 and N (shard K of N)");
+    }
+    Ok((k, n))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seeds_take_ranges_and_lists() {
+        assert_eq!(parse_seeds("1..3").unwrap(), vec![1, 2, 3]);
+        assert_eq!(parse_seeds("1,5,9").unwrap(), vec![1, 5, 9]);
+        assert_eq!(parse_seeds("1..3,10").unwrap(), vec![1, 2, 3, 10]);
+        assert_eq!(parse_seeds("7").unwrap(), vec![7]);
+        assert_eq!(parse_seeds("1..=2").unwrap(), vec![1, 2]);
+        assert_eq!(parse_seeds("1..100").unwrap().len(), 100);
+    }
+
+    #[test]
+    fn bad_seeds_are_named() {
+        let e = parse_seeds("5..1").unwrap_err().to_string();
+        assert!(e.contains("5..1") && e.contains("empty"), "{e}");
+        let e = parse_seeds("1..3,2").unwrap_err().to_string();
+        assert!(e.contains("seed 2 is listed twice"), "{e}");
+        let e = parse_seeds("a").unwrap_err().to_string();
+        assert!(e.contains("\"a\" is not a seed"), "{e}");
+        assert!(parse_seeds("").is_err());
+        assert!(parse_seeds("1,,2").is_err());
+    }
+
+    #[test]
+    fn params_and_shards_parse_or_are_named() {
+        assert_eq!(
+            parse_param_list("laps=1,2, 3").unwrap(),
+            ("laps".into(), vec!["1".into(), "2".into(), "3".into()])
+        );
+        assert!(parse_param_list("laps").is_err());
+        assert!(parse_param_list("laps=1,1").is_err());
+        assert!(parse_param_list("seed=1")
+            .unwrap_err()
+            .to_string()
+            .contains("--seeds"));
+        assert_eq!(parse_shard("2/4").unwrap(), (2, 4));
+        assert!(parse_shard("3/2")
+            .unwrap_err()
+            .to_string()
+            .contains("between 1 and N"));
+        assert!(parse_shard("0/2").is_err());
+        assert!(parse_shard("2").is_err());
+    }
+
+    #[test]
+    fn runs_are_the_cross_product_with_stable_ids() {
+        let d = Definition {
+            behaviour: "line_follow".into(),
+            worlds: vec!["oval".into(), "ring".into()],
+            robots: vec![],
+            params: vec![("laps".into(), vec!["1".into(), "2".into()])],
+            seeds: vec![3, 4, 5],
+            duration_s: None,
+        };
+        let runs = d.runs();
+        assert_eq!(runs.len(), 12);
+        assert_eq!(runs[0].id(), "world=oval,laps=1,seed=3");
+        assert_eq!(runs[4].id(), "world=oval,laps=2,seed=4");
+        assert_eq!(runs[11].id(), "world=ring,laps=2,seed=5");
+        assert_eq!(runs[11].combination(), "world=ring,laps=2");
+        assert!(runs.iter().enumerate().all(|(i, r)| r.index == i));
+        assert_eq!(d.swept().len(), 2);
+        let w = RunSpec {
+            world: Some("maps/a b.toml".into()),
+            ..runs[0].clone()
+        };
+        assert_eq!(w.file_stem(), "world=maps_a_b.toml,laps=1,seed=3");
+    }
+}

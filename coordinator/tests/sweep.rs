@@ -1,0 +1,301 @@
+//! `coordinator sweep`: a small sweep (a parameter's two values × 5 seeds of `square_walk`) runs,
+//! summarises what its per-run reports say, resumes after a kill without repeating finished runs,
+//! merges shards into the unsharded summary, and gives the same results every time.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+/// Two robots walking 0.1 m squares finish in about 5 s; 0.3 m squares bring them into each
+/// other's way and they do not finish within the 8 s limit, so the sweep has both outcomes.
+const SWEEP: &[&str] = &[
+    "sweep",
+    "--behaviour",
+    "square_walk",
+    "--robots",
+    "2",
+    "--param",
+    "side=0.1,0.3",
+    "--duration",
+    "8",
+    "--seeds",
+    "1..5",
+];
+
+fn dir(name: &str) -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sweep-{name}"));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn coordinator(args: &[&str], out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_coordinator"));
+    c.args(args).args(extra).arg("--out").arg(out);
+    c
+}
+
+fn run_ok(args: &[&str], out: &Path, extra: &[&str]) -> Output {
+    let o = coordinator(args, out, extra)
+        .output()
+        .expect("coordinator runs");
+    assert!(
+        o.status.success(),
+        "sweep failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    o
+}
+
+fn lines(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap_or_default()
+        .lines()
+        .map(String::from)
+        .collect()
+}
+
+fn json_lines(path: &Path) -> Vec<serde_json::Value> {
+    lines(path)
+        .iter()
+        .map(|l| serde_json::from_str(l).expect("a JSON line"))
+        .collect()
+}
+
+fn sorted(mut v: Vec<String>) -> Vec<String> {
+    v.sort();
+    v
+}
+
+/// summary.csv as rows of column → value, keyed by the `side` column.
+fn csv(path: &Path) -> BTreeMap<String, BTreeMap<String, String>> {
+    let text = std::fs::read_to_string(path).expect("summary.csv");
+    let mut rows = text.lines();
+    let header: Vec<&str> = rows.next().expect("a header").split(',').collect();
+    rows.map(|r| {
+        let row: BTreeMap<String, String> = header
+            .iter()
+            .zip(r.split(','))
+            .map(|(h, v)| (h.to_string(), v.to_string()))
+            .collect();
+        (row["side"].clone(), row)
+    })
+    .collect()
+}
+
+#[test]
+fn a_sweep_summarises_what_its_run_reports_say() {
+    let out = dir("summary");
+    let o = run_ok(SWEEP, &out, &["--jobs", "2"]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("# Sweep of square_walk"), "{stdout}");
+    let results = json_lines(&out.join("results.jsonl"));
+    assert_eq!(results.len(), 10);
+    let ids: BTreeSet<&str> = results.iter().map(|r| r["id"].as_str().unwrap()).collect();
+    assert!(ids.contains("robots=2,side=0.1,seed=1") && ids.contains("robots=2,side=0.3,seed=5"));
+
+    // Recompute each combination from the per-run JSON reports alone.
+    let mut reports: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    for entry in std::fs::read_dir(out.join("runs")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().to_string();
+        let side = name
+            .split(',')
+            .find_map(|p| p.strip_prefix("side="))
+            .expect("the side in the run's name")
+            .to_string();
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        reports.entry(side).or_default().push(report);
+    }
+    let summary = csv(&out.join("summary.csv"));
+    assert_eq!(reports.len(), 2);
+    let mut outcomes = BTreeSet::new();
+    for (side, rs) in &reports {
+        let row = &summary[side];
+        let successes = rs.iter().filter(|r| r["success"] == true).count();
+        outcomes.insert(successes);
+        assert_eq!(row["runs"], rs.len().to_string());
+        assert_eq!(row["successes"], successes.to_string());
+        assert_eq!(
+            row["success_rate"],
+            format!("{:.6}", successes as f64 / rs.len() as f64)
+        );
+        let mut values: Vec<f64> = rs
+            .iter()
+            .filter_map(|r| r["metrics"]["worst_closure_mm"].as_f64())
+            .collect();
+        values.sort_by(f64::total_cmp);
+        assert_eq!(row["worst_closure_mm_n"], values.len().to_string());
+        if !values.is_empty() {
+            let mean = values.iter().sum::<f64>() / values.len() as f64;
+            let n = values.len();
+            let median = if n % 2 == 1 {
+                values[n / 2]
+            } else {
+                (values[n / 2 - 1] + values[n / 2]) / 2.0
+            };
+            let p95 = values[(0.95 * n as f64).ceil() as usize - 1];
+            assert_eq!(row["worst_closure_mm_mean"], format!("{mean:.6}"));
+            assert_eq!(row["worst_closure_mm_median"], format!("{median:.6}"));
+            assert_eq!(row["worst_closure_mm_p95"], format!("{p95:.6}"));
+        }
+    }
+    assert!(outcomes.len() > 1, "both outcomes occur: {outcomes:?}");
+    let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(md.contains("## Failure reasons"), "{md}");
+    for svg in ["success_vs_side.svg", "metric_worst_closure_mm.svg"] {
+        let text = std::fs::read_to_string(out.join(svg)).unwrap_or_default();
+        assert!(text.starts_with("<svg"), "{svg} is a plot");
+    }
+}
+
+#[test]
+fn a_killed_sweep_resumes_without_repeating_finished_runs() {
+    let out = dir("resume");
+    let mut child = coordinator(SWEEP, &out, &["--jobs", "1"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("coordinator starts");
+    let stderr = BufReader::new(child.stderr.take().unwrap());
+    let mut finished = 0;
+    for line in stderr.lines() {
+        if line.unwrap().starts_with('[') {
+            finished += 1;
+            if finished == 3 {
+                break;
+            }
+        }
+    }
+    assert_eq!(finished, 3, "the sweep reported three finished runs");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let before = lines(&out.join("results.jsonl"));
+    assert!((3..10).contains(&before.len()), "{} results", before.len());
+
+    let o = run_ok(SWEEP, &out, &["--jobs", "2"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains(&format!("{} already done, skipped", before.len())),
+        "{stderr}"
+    );
+    assert_eq!(
+        stderr.lines().filter(|l| l.starts_with('[')).count(),
+        10 - before.len(),
+        "{stderr}"
+    );
+    let after = lines(&out.join("results.jsonl"));
+    assert_eq!(
+        after[..before.len()],
+        before[..],
+        "finished runs are kept as they were"
+    );
+    for file in ["results.jsonl", "timing.jsonl"] {
+        let ids: Vec<String> = json_lines(&out.join(file))
+            .iter()
+            .map(|r| r["id"].as_str().unwrap().to_string())
+            .collect();
+        let unique: BTreeSet<&String> = ids.iter().collect();
+        assert_eq!(
+            (ids.len(), unique.len()),
+            (10, 10),
+            "{file}: every run once"
+        );
+    }
+}
+
+#[test]
+fn shards_merge_into_the_unsharded_summary_and_runs_repeat_exactly() {
+    let whole = dir("whole");
+    let again = dir("again");
+    let (a, b, merged) = (dir("shard1"), dir("shard2"), dir("merged"));
+    run_ok(SWEEP, &whole, &["--jobs", "2"]);
+    run_ok(SWEEP, &again, &["--jobs", "2", "--record-failures"]);
+    run_ok(SWEEP, &a, &["--jobs", "2", "--shard", "1/2"]);
+    run_ok(SWEEP, &b, &["--jobs", "2", "--shard", "2/2"]);
+    assert_eq!(lines(&a.join("results.jsonl")).len(), 5);
+    assert_eq!(lines(&b.join("results.jsonl")).len(), 5);
+
+    // The same sweep twice: the same results, line for line (wall times are kept elsewhere).
+    assert_eq!(
+        sorted(lines(&whole.join("results.jsonl"))),
+        sorted(lines(&again.join("results.jsonl")))
+    );
+    // Recording changes no result, and only the failed runs keep theirs.
+    let kept: BTreeSet<String> = std::fs::read_dir(again.join("failures"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    let failed: BTreeSet<String> = json_lines(&again.join("results.jsonl"))
+        .iter()
+        .filter(|r| r["outcome"] != "success")
+        .map(|r| format!("{}.mcap", r["id"].as_str().unwrap()))
+        .collect();
+    assert_eq!(kept, failed);
+    assert_eq!(kept.len(), 5);
+    let wall = json_lines(&whole.join("timing.jsonl"));
+    assert!(wall.iter().all(|t| t["wall_s"].as_f64().unwrap() > 0.0));
+
+    let a_dir = a.to_string_lossy().to_string();
+    let b_dir = b.to_string_lossy().to_string();
+    run_ok(&["sweep", "merge", &a_dir, &b_dir], &merged, &[]);
+    for file in ["summary.csv", "summary.md"] {
+        assert_eq!(
+            std::fs::read_to_string(merged.join(file)).unwrap(),
+            std::fs::read_to_string(whole.join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    assert_eq!(
+        sorted(lines(&merged.join("results.jsonl"))),
+        sorted(lines(&whole.join("results.jsonl")))
+    );
+}
+
+#[test]
+fn bad_input_is_refused_with_the_reason() {
+    let out = dir("bad");
+    let refused = |args: &[&str], extra: &[&str], expect: &[&str]| {
+        let o = coordinator(args, &out, extra).output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{stderr}");
+        for e in expect {
+            assert!(stderr.contains(e), "{e:?} in {stderr}");
+        }
+    };
+    let mut reversed: Vec<&str> = SWEEP.to_vec();
+    *reversed.last_mut().unwrap() = "5..1";
+    refused(&reversed, &[], &["5..1", "empty"]);
+    refused(SWEEP, &["--shard", "3/2"], &["3/2", "between 1 and N"]);
+    let mut unknown: Vec<&str> = SWEEP.to_vec();
+    unknown[2] = "square_dance";
+    refused(
+        &unknown,
+        &[],
+        &["unknown behaviour \"square_dance\"", "square_walk"],
+    );
+    assert!(!out.exists(), "nothing is written for a refused sweep");
+
+    let one = [
+        "sweep",
+        "--behaviour",
+        "square_walk",
+        "--robots",
+        "2",
+        "--seeds",
+        "1",
+    ];
+    run_ok(&one, &out, &[]);
+    let other = [
+        "sweep",
+        "--behaviour",
+        "square_walk",
+        "--robots",
+        "2",
+        "--seeds",
+        "1..2",
+    ];
+    refused(&other, &[], &["holds a different sweep", "seeds"]);
+    assert_eq!(lines(&out.join("results.jsonl")).len(), 1);
+}
