@@ -144,7 +144,7 @@ fn cross_field_bounds_and_text_are_checked() {
     );
     let mut name = [0u8; 12];
     name[..3].copy_from_slice(b"a\xffb");
-    assert_names_field(refused_write("identity.name", &name), "identity.name");
+    assert_names_field(refused_write("identity.name", &name), "identity.name[1]");
 }
 
 #[test]
@@ -217,10 +217,8 @@ fn an_invalid_stored_image_falls_back_to_defaults() {
     let mut stored = Settings::default();
     stored.identity.robot_id = 9;
     stored.geometry.ticks_per_rev = 0;
-    let board = MockBoard {
-        storage: Some(bytemuck::cast(stored)),
-        ..MockBoard::default()
-    };
+    let mut board = MockBoard::default();
+    board.storage = Some(bytemuck::cast(stored));
     let mut r = MockRobot::new(board);
     assert_eq!(*r.fw.settings(), Settings::default());
     let mut warned = false;
@@ -232,9 +230,7 @@ fn an_invalid_stored_image_falls_back_to_defaults() {
     assert!(warned, "boot did not report the refused image");
 
     stored.geometry.ticks_per_rev = 40;
-    let board = MockBoard {
-        storage: Some(bytemuck::cast(stored)),
-        ..MockBoard::default()
-    };
+    let mut board = MockBoard::default();
+    board.storage = Some(bytemuck::cast(stored));
     assert_eq!(MockRobot::new(board).fw.robot_id(), 9);
 }

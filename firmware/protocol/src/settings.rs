@@ -430,9 +430,11 @@ fn number_at(bytes: &[u8], offset: usize, ty: &TypeInfo) -> Option<f64> {
     })
 }
 
-fn text_ok(bytes: &[u8]) -> bool {
+/// Index of the first byte that breaks NUL-padded printable ASCII, if any.
+fn bad_text_byte(bytes: &[u8]) -> Option<usize> {
     let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
-    bytes[..end].iter().all(|b| (0x20..=0x7E).contains(b)) && bytes[end..].iter().all(|&b| b == 0)
+    let printable = bytes[..end].iter().position(|b| !(0x20..=0x7E).contains(b));
+    printable.or_else(|| bytes[end..].iter().position(|&b| b != 0).map(|k| end + k))
 }
 
 impl Default for IdentitySettings {
@@ -587,8 +589,8 @@ impl Settings {
                 offset: (offset + k * elem.size) as u16,
             };
             if rule.range == Range::Text {
-                if !text_ok(&bytes[offset..offset + ty.size]) {
-                    return Err(refuse(0));
+                if let Some(k) = bad_text_byte(&bytes[offset..offset + ty.size]) {
+                    return Err(refuse(k));
                 }
                 continue;
             }
@@ -763,7 +765,7 @@ mod tests {
         );
         assert_eq!(
             refused("identity.name", b"bad\0name\0\0\0\0"),
-            out_of_range("identity.name")
+            out_of_range("identity.name[4]")
         );
     }
 
