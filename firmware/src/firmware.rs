@@ -479,9 +479,10 @@ impl<B: Board> Firmware<B> {
             }
             AnyPacket::SettingsRestoreDefaults(_) => {
                 // The identity belongs to this robot, not to the factory image.
-                let identity = self.settings.identity;
-                let mut restored = Settings::default();
-                restored.identity = identity;
+                let restored = Settings {
+                    identity: self.settings.identity,
+                    ..Settings::default()
+                };
                 // The live identity was validated when written; should it not pass, the factory
                 // identity is the one known-good choice.
                 self.settings = match restored.validate() {
