@@ -246,6 +246,46 @@ fn render_codes() -> String {
     s.trim_end().to_string() + "\n"
 }
 
+/// Every structure reachable from the packets, with the names the layout hash feeds.
+fn render_structures() -> String {
+    fn collect(ty: &'static TypeInfo, seen: &mut Vec<&'static TypeInfo>) {
+        if let Some((elem, _)) = ty.array {
+            return collect(elem, seen);
+        }
+        if ty.fields.is_empty() || seen.iter().any(|t| t.name == ty.name) {
+            return;
+        }
+        seen.push(ty);
+        for f in ty.fields {
+            collect(f.ty, seen);
+        }
+    }
+    let mut seen = Vec::new();
+    for &t in PacketType::ALL {
+        collect(t.layout(), &mut seen);
+    }
+    collect(&Settings::LAYOUT, &mut seen);
+    let mut s = String::from(
+        "| structure | size | fields (name: type @ offset) | layout hash |\n|---|---|---|---|\n",
+    );
+    for ty in seen {
+        let fields: Vec<String> = ty
+            .fields
+            .iter()
+            .map(|f| format!("{}: {} @ {}", f.name, type_name(f.ty), f.offset))
+            .collect();
+        let _ = writeln!(
+            s,
+            "| `{}` | {} | {} | `{:#018x}` |",
+            ty.name,
+            ty.size,
+            fields.join(", "),
+            ty.hash
+        );
+    }
+    s
+}
+
 fn render_constants() -> String {
     let rows = [
         ("`PROTOCOL_VERSION`", PROTOCOL_VERSION.to_string()),
@@ -382,6 +422,7 @@ fn protocol_doc_tables_match_the_code() {
         ("settings", render_settings()),
         ("codes", render_codes()),
         ("hash-example", render_hash_example()),
+        ("structures", render_structures()),
     ];
     let path = doc_path();
     let text = std::fs::read_to_string(&path)
