@@ -14,7 +14,7 @@ use robot_actor::actor::{Command, ReflectorSetup, RobotSnapshot};
 use robot_actor::link::sim::SimConnector;
 use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
 use robot_actor::odometry::Pose;
-use robot_actor::{setting, Robot, RobotConfig, RobotError, StateUpdated};
+use robot_actor::{setting, CallError, Robot, RobotConfig, RobotError, StateUpdated};
 use simulator::runtime::{self, Pace, SimHandle};
 use simulator::world::{file, presets};
 use simulator::{SimConfig, Simulation};
@@ -201,6 +201,35 @@ fn setting_one_field_sends_one_packet_and_the_robot_holds_it() {
             .await
             .unwrap();
         assert_eq!(kp, 55.5);
+    });
+}
+
+#[test]
+fn a_refused_setting_names_its_field_and_changes_nothing() {
+    paused(|| async {
+        let s = start(presets::preset("oval").unwrap(), RobotConfig::default());
+        s.robot.connected().await.unwrap();
+        let err = s
+            .robot
+            .set(setting!(geometry.ticks_per_rev), 0)
+            .await
+            .unwrap_err();
+        match &err {
+            CallError::Robot(RobotError::SettingRefused { field, reason, .. }) => {
+                assert_eq!(field.as_deref(), Some("geometry.ticks_per_rev"));
+                assert_eq!(*reason, Some(packets::NackReason::BadSettingValue));
+            }
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+        assert!(err.to_string().contains("geometry.ticks_per_rev"), "{err}");
+        let ticks = s
+            .handle
+            .inspect(|sim| sim.robots()[0].firmware().settings().geometry.ticks_per_rev)
+            .await
+            .unwrap();
+        assert_eq!(ticks, { Settings::default().geometry.ticks_per_rev });
+        // The refusal resolved its own write only: the next one still succeeds.
+        s.robot.set(setting!(line_pid.kp), 7.0).await.unwrap();
     });
 }
 
