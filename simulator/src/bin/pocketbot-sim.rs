@@ -32,9 +32,9 @@ struct Args {
     /// Run faster than real time instead of pacing to the wall clock.
     #[arg(long)]
     fast: bool,
-    /// Stop after this many simulated seconds.
-    #[arg(long)]
-    duration: Option<f64>,
+    /// Stop after this many simulated seconds (more than 0, at most 1e6).
+    #[arg(long, value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
+    duration: Option<Duration>,
     /// List the built-in worlds and exit.
     #[arg(long)]
     list_worlds: bool,
@@ -89,16 +89,13 @@ async fn main() -> Result<()> {
     }
     println!("serving {} robots", addrs.len());
     match args.duration {
-        Some(secs) => {
-            let end = Duration::from_secs_f64(secs);
-            loop {
-                let t = handle.truth().await.context("simulation stopped")?;
-                if t.now >= end {
-                    break;
-                }
-                tokio::time::sleep(Duration::from_millis(50)).await;
+        Some(end) => loop {
+            let t = handle.truth().await.context("simulation stopped")?;
+            if t.now >= end {
+                break;
             }
-        }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        },
         None => {
             tokio::signal::ctrl_c().await?;
         }
