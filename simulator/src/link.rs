@@ -241,6 +241,11 @@ impl Link {
         self.stats.discarded_on_close += n as u64;
     }
 
+    /// Counts host packets discarded on close before they had even entered the link.
+    pub fn count_discarded_on_close(&mut self, packets: u64) {
+        self.stats.discarded_on_close += packets;
+    }
+
     /// Counts host packets dropped before reaching the link (a host-side buffer was full).
     pub fn count_overflow_to_robot(&mut self, packets: u64, bytes: u64) {
         self.stats.overflow_to_robot += packets;

@@ -392,7 +392,8 @@ async fn step_loop(
                 Command::Connect(i) => sim.connect(i),
                 Command::Disconnect(i, done) => {
                     // What the leaving host still had waiting goes with it.
-                    to_robot[i].lock().0.clear();
+                    let waiting = to_robot[i].lock().0.clear();
+                    sim.count_discarded_on_close(i, waiting as u64);
                     sim.disconnect(i);
                     if let Some(done) = done {
                         let _ = done.send(());

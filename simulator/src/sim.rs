@@ -440,6 +440,11 @@ impl Simulation {
         r.link.host_closed();
     }
 
+    /// Counts packets a host-side buffer of robot `i`'s link discarded when its host left.
+    pub fn count_discarded_on_close(&mut self, i: usize, packets: u64) {
+        self.robots[i].link.count_discarded_on_close(packets);
+    }
+
     /// Accounts for a host-side buffer of robot `i`'s link: the packets it dropped for being full
     /// towards the robot (`to_robot`) and towards the host, as (packets, bytes), and the most bytes
     /// it held at once.
