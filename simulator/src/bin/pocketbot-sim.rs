@@ -56,6 +56,14 @@ fn load_world(name: &str) -> Result<simulator::World> {
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<()> {
     let args = Args::parse();
+    // Link buffer overflows are reported as warnings (at most one a second per robot).
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
     if args.list_worlds {
         for name in presets::preset_names() {
             let w = presets::preset(name).context("preset")?;
