@@ -2,6 +2,7 @@
 #![warn(missing_docs)]
 
 pub mod board;
+pub mod cli;
 pub mod drive;
 pub mod ir;
 pub mod link;

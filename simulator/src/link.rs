@@ -5,8 +5,16 @@
 //!
 //! Packets in one direction stay in order, as on L2CAP. A cut link drops everything in both
 //! directions until it is restored.
+//!
+//! Each direction holds at most [`LINK_BUFFER_BYTES`] bytes waiting for air time or in flight, like the small RX ring of a real robot's UART: a
+//! sender faster than the air drops what does not fit, counted in [`LinkStats`], instead of queueing
+//! without bound and pushing every later packet (and the piconet's air time) minutes away.
 
 use std::collections::VecDeque;
+
+/// Default bytes one direction of a link holds before it drops: a few KiB, as a PocketBot2's UART
+/// RX ring; at ~700 kbit/s it is ~50 ms of air time, so a full buffer delays a packet that little.
+pub const LINK_BUFFER_BYTES: usize = 4096;
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -55,24 +63,142 @@ pub struct LinkStats {
     pub lost: u64,
     /// Packets dropped because the link was cut.
     pub dropped_while_cut: u64,
+    /// Host-to-robot packets dropped because the robot's buffer was full.
+    pub overflow_to_robot: u64,
+    /// Bytes of those packets.
+    pub overflow_to_robot_bytes: u64,
+    /// Robot-to-host packets dropped because the host's buffer was full.
+    pub overflow_to_host: u64,
+    /// Bytes of those packets.
+    pub overflow_to_host_bytes: u64,
+    /// Packets still queued when the host end closed, discarded with it.
+    pub discarded_on_close: u64,
+    /// Most bytes ever waiting towards the robot at once (never above the buffer).
+    pub peak_to_robot_bytes: u64,
+    /// Most bytes ever waiting towards the host at once (never above the buffer).
+    pub peak_to_host_bytes: u64,
+    /// Most bytes ever waiting in the host-side buffer before entering the link, where the link
+    /// is driven through `runtime` (never above [`LINK_BUFFER_BYTES`]).
+    pub peak_host_buffer_bytes: u64,
+}
+
+impl LinkStats {
+    /// Packets dropped for a full buffer, both directions.
+    pub fn overflowed(&self) -> u64 {
+        self.overflow_to_robot + self.overflow_to_host
+    }
+}
+
+/// An ordered queue of packets bounded in bytes: what does not fit is refused, never buffered.
+#[derive(Clone, Debug, Default)]
+pub struct PacketQueue {
+    items: VecDeque<(u64, Vec<u8>)>,
+    bytes: usize,
+    capacity: usize,
+    peak_bytes: usize,
+}
+
+impl PacketQueue {
+    /// An empty queue holding at most `capacity` bytes.
+    pub fn new(capacity: usize) -> Self {
+        Self {
+            capacity,
+            ..Self::default()
+        }
+    }
+
+    /// Appends `packet` tagged `at` if it fits; gives it back otherwise.
+    pub fn push(&mut self, at: u64, packet: Vec<u8>) -> Result<(), Vec<u8>> {
+        if !self.fits(packet.len()) {
+            return Err(packet);
+        }
+        self.bytes += packet.len();
+        self.peak_bytes = self.peak_bytes.max(self.bytes);
+        self.items.push_back((at, packet));
+        Ok(())
+    }
+
+    /// Whether `len` more bytes fit.
+    pub fn fits(&self, len: usize) -> bool {
+        self.bytes + len <= self.capacity
+    }
+
+    /// The oldest packet and its tag.
+    pub fn pop(&mut self) -> Option<(u64, Vec<u8>)> {
+        let item = self.items.pop_front()?;
+        self.bytes -= item.1.len();
+        Some(item)
+    }
+
+    /// The oldest packet if its tag is at most `now`.
+    pub fn pop_due(&mut self, now: u64) -> Option<Vec<u8>> {
+        if self.items.front().is_some_and(|&(at, _)| at <= now) {
+            self.pop().map(|(_, p)| p)
+        } else {
+            None
+        }
+    }
+
+    /// Tag of the newest packet.
+    pub fn last_tag(&self) -> Option<u64> {
+        self.items.back().map(|&(at, _)| at)
+    }
+
+    /// Empties the queue; returns how many packets it held.
+    pub fn clear(&mut self) -> usize {
+        let n = self.items.len();
+        self.items.clear();
+        self.bytes = 0;
+        n
+    }
+
+    /// Packets queued.
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// Whether nothing is queued.
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// Bytes queued.
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// Most bytes ever queued at once.
+    pub fn peak_bytes(&self) -> usize {
+        self.peak_bytes
+    }
+
+    /// The byte bound.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
 }
 
 /// One robot's link: two ordered queues of packets with delivery times.
 #[derive(Clone, Debug)]
 pub struct Link {
-    to_robot: VecDeque<(u64, Vec<u8>)>,
-    to_host: VecDeque<(u64, Vec<u8>)>,
+    to_robot: PacketQueue,
+    to_host: PacketQueue,
     up: bool,
     stats: LinkStats,
     rng: ChaCha8Rng,
 }
 
 impl Link {
-    /// An up link with its own random stream.
+    /// An up link with its own random stream, buffering [`LINK_BUFFER_BYTES`] per direction.
     pub fn new(rng: ChaCha8Rng) -> Self {
+        Self::with_buffer(rng, LINK_BUFFER_BYTES)
+    }
+
+    /// An up link whose directions each hold at most `buffer_bytes`.
+    pub fn with_buffer(rng: ChaCha8Rng, buffer_bytes: usize) -> Self {
         Self {
-            to_robot: VecDeque::new(),
-            to_host: VecDeque::new(),
+            to_robot: PacketQueue::new(buffer_bytes),
+            to_host: PacketQueue::new(buffer_bytes),
             up: true,
             stats: LinkStats::default(),
             rng,
@@ -96,7 +222,46 @@ impl Link {
 
     /// Counters.
     pub fn stats(&self) -> LinkStats {
-        self.stats
+        LinkStats {
+            peak_to_robot_bytes: self.to_robot.peak_bytes() as u64,
+            peak_to_host_bytes: self.to_host.peak_bytes() as u64,
+            ..self.stats
+        }
+    }
+
+    /// Bytes waiting towards the robot and towards the host.
+    pub fn queued_bytes(&self) -> (usize, usize) {
+        (self.to_robot.bytes(), self.to_host.bytes())
+    }
+
+    /// The host end closed: whatever it sent that is still on the way, and whatever the robot sent
+    /// it, is discarded, so a host connecting next starts from an empty link.
+    pub fn host_closed(&mut self) {
+        let n = self.to_robot.clear() + self.to_host.clear();
+        self.stats.discarded_on_close += n as u64;
+    }
+
+    /// Counts host packets discarded on close before they had even entered the link.
+    pub fn count_discarded_on_close(&mut self, packets: u64) {
+        self.stats.discarded_on_close += packets;
+    }
+
+    /// Counts host packets dropped before reaching the link (a host-side buffer was full).
+    pub fn count_overflow_to_robot(&mut self, packets: u64, bytes: u64) {
+        self.stats.overflow_to_robot += packets;
+        self.stats.overflow_to_robot_bytes += bytes;
+    }
+
+    /// Counts robot packets the host side dropped (its client did not read fast enough).
+    pub fn count_overflow_to_host(&mut self, packets: u64, bytes: u64) {
+        self.stats.overflow_to_host += packets;
+        self.stats.overflow_to_host_bytes += bytes;
+    }
+
+    /// Records that the host-side buffer held `bytes` at its fullest.
+    pub fn note_host_buffer_peak(&mut self, bytes: usize) {
+        let bytes = bytes as u64;
+        self.stats.peak_host_buffer_bytes = self.stats.peak_host_buffer_bytes.max(bytes);
     }
 
     /// The host sends a packet at `now_ns`.
@@ -109,7 +274,8 @@ impl Link {
     ) {
         self.stats.to_robot += 1;
         if let Some(at) = self.schedule(now_ns, packet.len(), model, air, true) {
-            self.to_robot.push_back((at, packet));
+            // `schedule` checked that it fits.
+            let _ = self.to_robot.push(at, packet);
         }
     }
 
@@ -123,18 +289,18 @@ impl Link {
     ) {
         self.stats.to_host += 1;
         if let Some(at) = self.schedule(now_ns, packet.len(), model, air, false) {
-            self.to_host.push_back((at, packet));
+            let _ = self.to_host.push(at, packet);
         }
     }
 
     /// The next packet due at the robot by `now_ns`.
     pub fn recv_at_robot(&mut self, now_ns: u64) -> Option<Vec<u8>> {
-        pop_due(&mut self.to_robot, now_ns)
+        self.to_robot.pop_due(now_ns)
     }
 
     /// The next packet due at the host by `now_ns`.
     pub fn recv_at_host(&mut self, now_ns: u64) -> Option<Vec<u8>> {
-        pop_due(&mut self.to_host, now_ns)
+        self.to_host.pop_due(now_ns)
     }
 
     fn schedule(
@@ -147,6 +313,21 @@ impl Link {
     ) -> Option<u64> {
         if !self.up {
             self.stats.dropped_while_cut += 1;
+            return None;
+        }
+        // A full buffer refuses the packet before it takes any air time, as a full UART ring
+        // loses the bytes without delaying those behind it.
+        let queue = if to_robot {
+            &self.to_robot
+        } else {
+            &self.to_host
+        };
+        if !queue.fits(bytes) {
+            if to_robot {
+                self.count_overflow_to_robot(1, bytes as u64);
+            } else {
+                self.count_overflow_to_host(1, bytes as u64);
+            }
             return None;
         }
         if model.loss > 0.0 && self.rng.gen::<f64>() < model.loss {
@@ -172,18 +353,10 @@ impl Link {
         } else {
             &self.to_host
         };
-        if let Some(&(last, _)) = queue.back() {
+        if let Some(last) = queue.last_tag() {
             at = at.max(last);
         }
         Some(at)
-    }
-}
-
-fn pop_due(q: &mut VecDeque<(u64, Vec<u8>)>, now_ns: u64) -> Option<Vec<u8>> {
-    if q.front().is_some_and(|&(at, _)| at <= now_ns) {
-        q.pop_front().map(|(_, p)| p)
-    } else {
-        None
     }
 }
 
@@ -223,7 +396,10 @@ mod tests {
             ..LinkModel::default()
         };
         let mut air = Piconet::default();
-        let mut links: Vec<Link> = (0..7).map(|_| link()).collect();
+        // Buffers big enough for the burst: this is about air time, not overflow.
+        let mut links: Vec<Link> = (0..7)
+            .map(|_| Link::with_buffer(ChaCha8Rng::seed_from_u64(7), 1 << 20))
+            .collect();
         // 7 robots each send 100 full-state packets at once: 7·100·(110 + 10 overhead)·8 bits at
         // 700 kbit/s take 0.96 s of air time.
         for l in links.iter_mut() {
@@ -261,5 +437,48 @@ mod tests {
         l.send_to_robot(0, vec![1], &model, &mut air);
         assert_eq!(l.recv_at_host(u64::MAX), None);
         assert!(l.stats().dropped_while_cut > 0);
+    }
+
+    #[test]
+    fn a_flood_is_dropped_past_the_buffer_without_taking_air_time() {
+        let model = LinkModel {
+            jitter_s: 0.0,
+            ..LinkModel::default()
+        };
+        let mut air = Piconet::default();
+        let mut l = link();
+        // 1 MB of 100-byte packets at once: only the first 4 KiB fit.
+        for _ in 0..10_000 {
+            l.send_to_robot(0, vec![0; 100], &model, &mut air);
+        }
+        let s = l.stats();
+        let fit = (LINK_BUFFER_BYTES / 100) as u64;
+        assert_eq!(s.overflow_to_robot, 10_000 - fit);
+        assert_eq!(s.overflow_to_robot_bytes, (10_000 - fit) * 100);
+        assert_eq!(s.peak_to_robot_bytes, fit * 100);
+        // Only what fits took air time: 40 · 110 bytes at 700 kbit/s ≈ 50 ms.
+        let busy_s = air.busy_until_ns as f64 * 1e-9;
+        assert!(busy_s < 0.06, "{busy_s}");
+        // Once delivered there is room again, and a new packet arrives a latency later.
+        let delivered = std::iter::from_fn(|| l.recv_at_robot(100_000_000)).count();
+        assert_eq!(delivered as u64, fit);
+        l.send_to_robot(100_000_000, vec![9; 10], &model, &mut air);
+        assert_eq!(l.recv_at_robot(111_000_000), Some(vec![9; 10]));
+    }
+
+    #[test]
+    fn closing_the_host_end_discards_what_is_queued() {
+        let model = LinkModel::default();
+        let mut air = Piconet::default();
+        let mut l = link();
+        for _ in 0..5 {
+            l.send_to_robot(0, vec![1; 10], &model, &mut air);
+            l.send_to_host(0, vec![2; 10], &model, &mut air);
+        }
+        l.host_closed();
+        assert_eq!(l.queued_bytes(), (0, 0));
+        assert_eq!(l.stats().discarded_on_close, 10);
+        assert_eq!(l.recv_at_robot(u64::MAX), None);
+        assert_eq!(l.recv_at_host(u64::MAX), None);
     }
 }

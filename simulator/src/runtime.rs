@@ -5,11 +5,19 @@
 //! Under tokio's paused clock (`start_paused(true)`) the stepping task sleeps one `dt` per step, so
 //! simulated time advances only when every other task is idle: lockstep, deterministic, and as
 //! fast as the host side can keep up.
+//!
+//! Packets a host sends wait in a buffer of [`LINK_BUFFER_BYTES`] until the next step hands them to
+//! the link, which holds as much again: a host sending faster than the link carries loses packets
+//! (counted in the robot's [`LinkStats`](crate::link::LinkStats) and logged at most once a second),
+//! and neither memory nor the delay of later packets grows with the flood.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use tokio::sync::{mpsc, oneshot};
 
+use crate::link::{PacketQueue, LINK_BUFFER_BYTES};
 use crate::sim::{Pose, Simulation};
 
 /// How the stepping task keeps time.
@@ -25,7 +33,7 @@ pub enum Pace {
 
 enum Command {
     Connect(usize),
-    Disconnect(usize),
+    Disconnect(usize, Option<oneshot::Sender<()>>),
     SetLinkUp(usize, bool),
     Truth(oneshot::Sender<Truth>),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
@@ -53,12 +61,73 @@ pub struct Truth {
     pub wall_contacts: usize,
 }
 
+/// What a host's side of one link has dropped for a full buffer, as (packets, bytes) per
+/// direction, not yet counted in the simulation.
+#[derive(Default)]
+struct Dropped {
+    to_robot: (u64, u64),
+    to_host: (u64, u64),
+}
+
+/// Host packets on their way into the simulation, shared by a link end and the stepping task.
+struct HostBuffer {
+    inbox: Mutex<(PacketQueue, Dropped)>,
+    stopped: AtomicBool,
+}
+
+impl HostBuffer {
+    fn new() -> Self {
+        Self {
+            inbox: Mutex::new((PacketQueue::new(LINK_BUFFER_BYTES), Dropped::default())),
+            stopped: AtomicBool::new(false),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, (PacketQueue, Dropped)> {
+        // The guarded data stays consistent whatever panicked while holding it.
+        self.inbox.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn send(&self, packet: &[u8]) -> bool {
+        if self.stopped.load(Ordering::Acquire) {
+            return false;
+        }
+        let mut guard = self.lock();
+        let (queue, dropped) = &mut *guard;
+        if queue.fits(packet.len()) {
+            let _ = queue.push(0, packet.to_vec());
+        } else {
+            dropped.to_robot.0 += 1;
+            dropped.to_robot.1 += packet.len() as u64;
+        }
+        true
+    }
+
+    fn dropped_to_host(&self, bytes: usize) {
+        let mut guard = self.lock();
+        guard.1.to_host.0 += 1;
+        guard.1.to_host.1 += bytes as u64;
+    }
+}
+
+/// Marks the host buffers stopped however the stepping task ends (returned, or dropped with its
+/// runtime), so senders learn it.
+struct StopOnDrop(Vec<Arc<HostBuffer>>);
+
+impl Drop for StopOnDrop {
+    fn drop(&mut self) {
+        for b in &self.0 {
+            b.stopped.store(true, Ordering::Release);
+        }
+    }
+}
+
 /// The host end of one robot's link.
 pub struct LinkEnd {
     /// Robot id.
     pub robot_id: u16,
     index: usize,
-    to_robot: mpsc::UnboundedSender<Vec<u8>>,
+    to_robot: Arc<HostBuffer>,
     from_robot: mpsc::UnboundedReceiver<Vec<u8>>,
     commands: mpsc::UnboundedSender<Command>,
 }
@@ -71,12 +140,13 @@ impl LinkEnd {
 
     /// Closes the link; the robot's packets go nowhere until it is opened again.
     pub fn disconnect(&self) {
-        let _ = self.commands.send(Command::Disconnect(self.index));
+        let _ = self.commands.send(Command::Disconnect(self.index, None));
     }
 
-    /// Sends one packet's bytes to the robot; `false` once the simulation has stopped.
+    /// Sends one packet's bytes to the robot; `false` once the simulation has stopped. A packet
+    /// that finds the host buffer full is dropped and counted, as a serial link would.
     pub fn send(&self, packet: Vec<u8>) -> bool {
-        self.to_robot.send(packet).is_ok()
+        self.to_robot.send(&packet)
     }
 
     /// The next packet from the robot; `None` once the simulation has stopped.
@@ -109,14 +179,24 @@ pub struct LinkSender {
     /// Robot id.
     pub robot_id: u16,
     index: usize,
-    to_robot: mpsc::UnboundedSender<Vec<u8>>,
+    to_robot: Arc<HostBuffer>,
     commands: mpsc::UnboundedSender<Command>,
 }
 
 impl LinkSender {
-    /// Sends one packet's bytes to the robot.
+    /// Sends one packet's bytes to the robot; `false` once the simulation has stopped. A packet
+    /// that finds the host buffer full is dropped and counted.
     pub fn send(&self, packet: Vec<u8>) -> bool {
-        self.to_robot.send(packet).is_ok()
+        self.to_robot.send(&packet)
+    }
+    /// As [`send`](Self::send), copying the bytes only if they fit.
+    pub fn send_slice(&self, packet: &[u8]) -> bool {
+        self.to_robot.send(packet)
+    }
+    /// Counts a robot packet of `bytes` that the host side dropped because its own client did not
+    /// keep up; it shows in the robot's link statistics.
+    pub fn count_dropped_to_host(&self, bytes: usize) {
+        self.to_robot.dropped_to_host(bytes);
     }
     /// Opens the link.
     pub fn connect(&self) {
@@ -124,7 +204,20 @@ impl LinkSender {
     }
     /// Closes the link.
     pub fn disconnect(&self) {
-        let _ = self.commands.send(Command::Disconnect(self.index));
+        let _ = self.commands.send(Command::Disconnect(self.index, None));
+    }
+    /// Closes the link and waits until the simulation has discarded what was queued either way:
+    /// after it, nothing the old host sent reaches the robot and nothing the robot sent the old host
+    /// is still to come. Returns at once if the simulation has stopped.
+    pub async fn close(&self) {
+        let (tx, rx) = oneshot::channel();
+        if self
+            .commands
+            .send(Command::Disconnect(self.index, Some(tx)))
+            .is_ok()
+        {
+            let _ = rx.await;
+        }
     }
 }
 
@@ -206,29 +299,90 @@ pub fn spawn(
     let mut to_robot_rx = Vec::new();
     let mut from_robot_tx = Vec::new();
     for (i, r) in sim.robots().iter().enumerate() {
-        let (to_tx, to_rx) = mpsc::unbounded_channel();
+        let buffer = Arc::new(HostBuffer::new());
         let (from_tx, from_rx) = mpsc::unbounded_channel();
         ends.push(LinkEnd {
             robot_id: r.id(),
             index: i,
-            to_robot: to_tx,
+            to_robot: Arc::clone(&buffer),
             from_robot: from_rx,
             commands: cmd_tx.clone(),
         });
-        to_robot_rx.push(to_rx);
+        to_robot_rx.push(buffer);
         from_robot_tx.push(from_tx);
     }
     let task = tokio::spawn(step_loop(sim, pace, cmd_rx, to_robot_rx, from_robot_tx));
     (SimHandle { commands: cmd_tx }, ends, task)
 }
 
+/// Logs a robot's buffer overflows at most once a second, with the count since the last line.
+struct OverflowLog {
+    logged: Vec<u64>,
+    last: Vec<Option<std::time::Instant>>,
+}
+
+impl OverflowLog {
+    const EVERY: Duration = Duration::from_secs(1);
+
+    fn new(robots: usize) -> Self {
+        Self {
+            logged: vec![0; robots],
+            last: vec![None; robots],
+        }
+    }
+
+    fn check(&mut self, sim: &Simulation) {
+        for (i, r) in sim.robots().iter().enumerate() {
+            let total = r.link_stats().overflowed();
+            if total == self.logged[i] {
+                continue;
+            }
+            let now = std::time::Instant::now();
+            if self.last[i].is_some_and(|t| now.duration_since(t) < Self::EVERY) {
+                continue;
+            }
+            let s = r.link_stats();
+            tracing::warn!(
+                robot = r.id(),
+                dropped = total - self.logged[i],
+                to_robot_total = s.overflow_to_robot,
+                to_host_total = s.overflow_to_host,
+                "link buffer full ({LINK_BUFFER_BYTES} bytes): packets dropped"
+            );
+            self.logged[i] = total;
+            self.last[i] = Some(now);
+        }
+    }
+}
+
+/// Hands robot `i`'s waiting host packets to its link and counts what the host side dropped.
+fn drain_host_buffer(sim: &mut Simulation, i: usize, buffer: &HostBuffer) {
+    let (packets, dropped) = {
+        let mut guard = buffer.lock();
+        let (queue, dropped) = &mut *guard;
+        if queue.is_empty() && dropped.to_robot.0 == 0 && dropped.to_host.0 == 0 {
+            return;
+        }
+        let peak = queue.peak_bytes();
+        let packets: Vec<Vec<u8>> = std::iter::from_fn(|| queue.pop().map(|(_, p)| p)).collect();
+        (packets, (std::mem::take(dropped), peak))
+    };
+    let (dropped, peak) = dropped;
+    sim.note_host_buffer(i, dropped.to_robot, dropped.to_host, peak);
+    for p in packets {
+        sim.host_send(i, p);
+    }
+}
+
 async fn step_loop(
     mut sim: Simulation,
     pace: Pace,
     mut commands: mpsc::UnboundedReceiver<Command>,
-    mut to_robot: Vec<mpsc::UnboundedReceiver<Vec<u8>>>,
+    to_robot: Vec<Arc<HostBuffer>>,
     from_robot: Vec<mpsc::UnboundedSender<Vec<u8>>>,
 ) -> Simulation {
+    let _stopped = StopOnDrop(to_robot.clone());
+    let mut overflow_log = OverflowLog::new(to_robot.len());
     let dt = sim.dt();
     let wall_start = tokio::time::Instant::now();
     let sim_start = sim.now();
@@ -236,7 +390,15 @@ async fn step_loop(
         while let Ok(c) = commands.try_recv() {
             match c {
                 Command::Connect(i) => sim.connect(i),
-                Command::Disconnect(i) => sim.disconnect(i),
+                Command::Disconnect(i, done) => {
+                    // What the leaving host still had waiting goes with it.
+                    let waiting = to_robot[i].lock().0.clear();
+                    sim.count_discarded_on_close(i, waiting as u64);
+                    sim.disconnect(i);
+                    if let Some(done) = done {
+                        let _ = done.send(());
+                    }
+                }
                 Command::SetLinkUp(i, up) => sim.set_link_up(i, up),
                 Command::Truth(reply) => {
                     let _ = reply.send(truth(&sim));
@@ -245,12 +407,11 @@ async fn step_loop(
                 Command::Stop => return sim,
             }
         }
-        for (i, rx) in to_robot.iter_mut().enumerate() {
-            while let Ok(p) = rx.try_recv() {
-                sim.host_send(i, p);
-            }
+        for (i, buffer) in to_robot.iter().enumerate() {
+            drain_host_buffer(&mut sim, i, buffer);
         }
         sim.step();
+        overflow_log.check(&sim);
         for (i, tx) in from_robot.iter().enumerate() {
             while let Some(p) = sim.host_recv(i) {
                 let _ = tx.send(p);

@@ -127,6 +127,10 @@ impl SimRobot {
     pub fn link_stats(&self) -> LinkStats {
         self.link.stats()
     }
+    /// Bytes waiting on the link towards the robot and towards the host.
+    pub fn link_queued_bytes(&self) -> (usize, usize) {
+        self.link.queued_bytes()
+    }
     /// Whether the link is up.
     pub fn link_up(&self) -> bool {
         self.link.is_up()
@@ -428,9 +432,33 @@ impl Simulation {
         self.flush_outgoing(i);
     }
 
-    /// The host end of robot `i`'s link closes; the robot's packets go nowhere.
+    /// The host end of robot `i`'s link closes; the robot's packets go nowhere, and what either
+    /// side had queued is discarded so the next host starts afresh.
     pub fn disconnect(&mut self, i: usize) {
-        self.robots[i].connected = false;
+        let r = &mut self.robots[i];
+        r.connected = false;
+        r.link.host_closed();
+    }
+
+    /// Counts packets a host-side buffer of robot `i`'s link discarded when its host left.
+    pub fn count_discarded_on_close(&mut self, i: usize, packets: u64) {
+        self.robots[i].link.count_discarded_on_close(packets);
+    }
+
+    /// Accounts for a host-side buffer of robot `i`'s link: the packets it dropped for being full
+    /// towards the robot (`to_robot`) and towards the host, as (packets, bytes), and the most bytes
+    /// it held at once.
+    pub fn note_host_buffer(
+        &mut self,
+        i: usize,
+        to_robot: (u64, u64),
+        to_host: (u64, u64),
+        peak_bytes: usize,
+    ) {
+        let link = &mut self.robots[i].link;
+        link.count_overflow_to_robot(to_robot.0, to_robot.1);
+        link.count_overflow_to_host(to_host.0, to_host.1);
+        link.note_host_buffer_peak(peak_bytes);
     }
 
     /// Cuts (`false`) or restores (`true`) robot `i`'s link, as a fault.

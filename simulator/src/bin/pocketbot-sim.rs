@@ -32,9 +32,9 @@ struct Args {
     /// Run faster than real time instead of pacing to the wall clock.
     #[arg(long)]
     fast: bool,
-    /// Stop after this many simulated seconds.
-    #[arg(long)]
-    duration: Option<f64>,
+    /// Stop after this many simulated seconds (more than 0, at most 1e6).
+    #[arg(long, value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
+    duration: Option<Duration>,
     /// List the built-in worlds and exit.
     #[arg(long)]
     list_worlds: bool,
@@ -56,6 +56,14 @@ fn load_world(name: &str) -> Result<simulator::World> {
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<()> {
     let args = Args::parse();
+    // Link buffer overflows are reported as warnings (at most one a second per robot).
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
     if args.list_worlds {
         for name in presets::preset_names() {
             let w = presets::preset(name).context("preset")?;
@@ -89,16 +97,13 @@ async fn main() -> Result<()> {
     }
     println!("serving {} robots", addrs.len());
     match args.duration {
-        Some(secs) => {
-            let end = Duration::from_secs_f64(secs);
-            loop {
-                let t = handle.truth().await.context("simulation stopped")?;
-                if t.now >= end {
-                    break;
-                }
-                tokio::time::sleep(Duration::from_millis(50)).await;
+        Some(end) => loop {
+            let t = handle.truth().await.context("simulation stopped")?;
+            if t.now >= end {
+                break;
             }
-        }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        },
         None => {
             tokio::signal::ctrl_c().await?;
         }
