@@ -525,6 +525,11 @@ impl CooperativePush {
                         .keys()
                         .map(|&id| (id, lapped(id)))
                         .find(|(_, m)| *m < EVIDENCE_SHARE * claimed);
+                    let least = self
+                        .bots
+                        .keys()
+                        .map(|&id| lapped(id))
+                        .fold(f64::INFINITY, f64::min);
                     if let Some((id, measured)) = short {
                         return self.fail(format!(
                             "robot {id}: its place on the tape went {} lap(s) after the push but \
@@ -534,11 +539,6 @@ impl CooperativePush {
                             EVIDENCE_SHARE * claimed
                         ));
                     }
-                    let least = self
-                        .bots
-                        .keys()
-                        .map(|&id| lapped(id))
-                        .fold(f64::INFINITY, f64::min);
                     let mut v = Verdict::success(format!(
                         "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
                          the team has lapped {} more time(s) without finding it on the track, \
