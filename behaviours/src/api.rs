@@ -279,14 +279,16 @@ impl Registry {
         let mut r = Self::new();
         r.register(
             "square_walk",
-            "every robot walks a 0.1 m square (thesis A.1); success when each closes within 10 mm",
+            "every robot walks a 0.1 m square (thesis A.1); success when each closes within 10 mm \
+             and its encoders measured the walk",
             "open",
             |cfg| Ok(Box::new(crate::square_walk::SquareWalk::new(cfg)?)),
         );
         r.register(
             "cooperative_push",
             "two robots find a box too heavy for one on the track and push it off together \
-             (thesis A.2); success when it is clear and both lap again",
+             (thesis A.2); success when it is clear and both lap again, pushes and laps measured by \
+             their encoders",
             "push",
             |cfg| {
                 Ok(Box::new(crate::cooperative_push::CooperativePush::new(
@@ -297,21 +299,23 @@ impl Registry {
         r.register(
             "token_ring",
             "a token passes round robots following a track when they identify each other by IR \
-             (thesis A.3), around a box, reversing each round; success after three rounds",
+             (thesis A.3), around a box, reversing each round; success after three rounds with \
+             half a loop per round on each robot's encoders",
             "ring",
             |cfg| Ok(Box::new(crate::token_ring::TokenRing::new(cfg)?)),
         );
         r.register(
             "traffic_control",
             "robots serve streams of goal nodes on a track graph with a deadlock-free plan \
-             (LaCAM) run as a dependency graph; success after 100 tasks without collision",
+             (LaCAM) run as a dependency graph; success after 100 tasks without collision, the \
+             edges driven measured by the encoders",
             "junction",
             |cfg| Ok(Box::new(crate::traffic_control::TrafficControl::new(cfg)?)),
         );
         r.register(
             "line_follow",
             "robots follow a closed track at their own speeds, keeping their distance; success \
-             when each has driven its laps",
+             when each has driven its laps, measured by its encoders",
             "oval",
             |cfg| Ok(Box::new(crate::line_follow::LineFollow::new(cfg)?)),
         );

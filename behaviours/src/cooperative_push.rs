@@ -7,8 +7,15 @@
 //!
 //! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
 //! robot ahead in the world model creeps, and stops at the first reflection at the weakest power
-//! level (within 15 mm); where the box is comes from the finder's pose and that reach. Success: the team lapped the track again after the push without finding
-//! the box.
+//! level (within 15 mm); where the box is comes from the finder's pose and that reach.
+//!
+//! Success: the box gave way (every pusher's line sensor crossed the tape the box stood on), each
+//! pusher's encoders measured at least 90 % of the push it was sent (134 mm of the default
+//! 12 + 150 mm, slipping or not: a robot that never drove has not pushed), and after the push
+//! the team lapped the track again without finding the box, each robot's encoders measuring at
+//! least 90 % of those laps (1.75 m for the default lap of the push world's loop). A robot whose
+//! wheels are driven for 3 s without an encoder pulse fails the run at once (see
+//! [`crate::evidence`]).
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -18,6 +25,7 @@ use protocol::packets::MoveOutcome;
 use robot_actor::{Pose, RobotEventKind};
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
+use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::moves::Route;
 use crate::track_loop::TrackLoop;
 
@@ -106,6 +114,10 @@ struct Bot {
     last_s: Option<f64>,
     /// Metres lapped since rejoining.
     lapped_m: f64,
+    /// The odometer's reading when lapping began.
+    lap_odometer_m: Option<f64>,
+    /// The odometer's reading when the push began.
+    push_odometer_m: f64,
     /// Backing up towards the tape after the push, since then.
     backing: Option<Duration>,
     /// The line sensor crossed the tape during the push: the box gave way.
@@ -128,6 +140,7 @@ pub struct CooperativePush {
     pushes: u32,
     push_started: Duration,
     push_time: Option<Duration>,
+    odometer: Odometer,
     verdict: Option<Verdict>,
 }
 
@@ -162,6 +175,7 @@ impl CooperativePush {
             pushes: 0,
             push_started: Duration::ZERO,
             push_time: None,
+            odometer: Odometer::new(),
             verdict: None,
         })
     }
@@ -318,6 +332,10 @@ impl CooperativePush {
     }
 
     fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.odometer.observe(world);
+        if let Some(stall) = self.odometer.stall() {
+            return self.fail(stall.to_string());
+        }
         let mut out = Vec::new();
         let limit = match self.phase {
             // Following is slowed by spacing; three times the lap time at full speed is plenty.
@@ -442,6 +460,23 @@ impl CooperativePush {
                             self.bots.len()
                         ));
                     }
+                    // The box can give way to one robot's push while the other only stood
+                    // beside it: each must have driven its share.
+                    let sent = LANE_GAP + self.push_m;
+                    let odometer = &self.odometer;
+                    let short = self.bots.iter().find_map(|(&id, b)| {
+                        let driven = odometer.distance_m(id) - b.push_odometer_m;
+                        (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
+                    });
+                    if let Some((id, driven)) = short {
+                        return self.fail(format!(
+                            "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm \
+                             push it was sent (at least {:.0} mm needed)",
+                            driven * 1e3,
+                            sent * 1e3,
+                            EVIDENCE_SHARE * sent * 1e3
+                        ));
+                    }
                     if let Some(f) = self.finder {
                         out.extend(self.start_backing(f));
                     }
@@ -466,9 +501,11 @@ impl CooperativePush {
             Phase::Lapping => {
                 let length = self.track.length_m();
                 for view in &world.robots {
+                    let odometer_m = self.odometer.distance_m(view.id);
                     let Some(bot) = self.bots.get_mut(&view.id) else {
                         continue;
                     };
+                    bot.lap_odometer_m.get_or_insert(odometer_m);
                     let s = view.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
                     if let (Some(before), Some(after)) = (bot.last_s, s) {
                         bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
@@ -478,14 +515,40 @@ impl CooperativePush {
                     }
                 }
                 if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
+                    let claimed = self.laps * length;
+                    let lapped = |id: u16| {
+                        let from = self.bots.get(&id).and_then(|b| b.lap_odometer_m);
+                        self.odometer.distance_m(id) - from.unwrap_or(0.0)
+                    };
+                    let short = self
+                        .bots
+                        .keys()
+                        .map(|&id| (id, lapped(id)))
+                        .find(|(_, m)| *m < EVIDENCE_SHARE * claimed);
+                    let least = self
+                        .bots
+                        .keys()
+                        .map(|&id| lapped(id))
+                        .fold(f64::INFINITY, f64::min);
+                    if let Some((id, measured)) = short {
+                        return self.fail(format!(
+                            "robot {id}: its place on the tape went {} lap(s) after the push but \
+                             its encoders measured {measured:.2} m, short of the {:.2} m driving \
+                             them takes",
+                            self.laps,
+                            EVIDENCE_SHARE * claimed
+                        ));
+                    }
                     let mut v = Verdict::success(format!(
                         "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
-                         the team has lapped {} more time(s) without finding it on the track",
+                         the team has lapped {} more time(s) without finding it on the track, \
+                         each robot at least {least:.2} m by its encoders",
                         self.bots.len(),
                         self.push_m * 1e3,
                         self.laps
                     ))
-                    .with("pushes", f64::from(self.pushes));
+                    .with("pushes", f64::from(self.pushes))
+                    .with("least_encoder_lap_m", least);
                     if let Some(t) = self.push_time {
                         v = v.with("push_time_s", t.as_secs_f64());
                     }
@@ -506,6 +569,9 @@ impl CooperativePush {
         self.push_started = world.time;
         self.enter(Phase::Push, world);
         let ids: Vec<u16> = self.bots.keys().copied().collect();
+        for (&id, b) in self.bots.iter_mut() {
+            b.push_odometer_m = self.odometer.distance_m(id);
+        }
         // One command per robot in the same reply: the supervisor sends them back to back.
         let mut out = Vec::new();
         for id in ids {
@@ -537,6 +603,7 @@ impl CooperativePush {
                 for b in self.bots.values_mut() {
                     b.lapped_m = 0.0;
                     b.last_s = None;
+                    b.lap_odometer_m = None;
                 }
             }
             _ => return Vec::new(),

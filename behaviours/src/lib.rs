@@ -4,6 +4,7 @@
 pub mod actor;
 pub mod api;
 pub mod cooperative_push;
+pub mod evidence;
 pub mod line_follow;
 pub mod moves;
 pub mod square_walk;
@@ -16,6 +17,7 @@ pub use api::{
     Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Registry, RobotView,
     Verdict, WorldSnapshot,
 };
+pub use evidence::{Odometer, Stall};
 pub use protocol::packets::MoveOutcome;
 pub use robot_actor::{MoveCommand, Pose, RobotEventKind};
 pub use simulator::world::graph::TrackGraph;

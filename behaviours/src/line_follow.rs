@@ -5,6 +5,11 @@
 //! is the along-track distance from the world model (both robots on the tape), the straight-line
 //! distance to a robot in front that is off the tape, and the range of the robot ahead's IR frames
 //! as the front receiver reports them, whichever is least.
+//!
+//! Success: every robot's place on the tape advanced by the laps asked for, and its encoders
+//! measured at least 90 % of that distance (laps × loop length × 0.9; 5.2 m for the default three
+//! laps of the oval). A robot whose wheels are driven for 3 s without an encoder pulse fails the
+//! run at once (see [`crate::evidence`]).
 
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
@@ -13,6 +18,7 @@ use std::time::Duration;
 use robot_actor::RobotEventKind;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::track_loop::TrackLoop;
 
 /// Body length: the along-track gap between two robots' sensors minus this is the free space.
@@ -50,6 +56,7 @@ pub struct LineFollow {
     spacing_m: f64,
     followers: BTreeMap<u16, Follower>,
     min_gap_m: f64,
+    odometer: Odometer,
     verdict: Option<Verdict>,
 }
 
@@ -88,6 +95,7 @@ impl LineFollow {
             spacing_m,
             followers,
             min_gap_m: f64::INFINITY,
+            odometer: Odometer::new(),
             verdict: None,
         })
     }
@@ -123,6 +131,25 @@ impl LineFollow {
         gap
     }
 
+    /// Ends the run as failed and stops every robot.
+    fn fail(&mut self, why: String) -> Vec<Intent> {
+        let fewest = self
+            .followers
+            .values()
+            .map(|f| f.progress_m / self.track.length_m())
+            .fold(f64::INFINITY, f64::min);
+        let least_m = self.odometer.least_m(self.followers.keys().copied());
+        self.verdict = Some(
+            Verdict::failure(why)
+                .with("laps_min", fewest)
+                .with("least_encoder_distance_m", least_m),
+        );
+        self.followers
+            .keys()
+            .map(|&robot| Intent::Stop { robot })
+            .collect()
+    }
+
     fn speed_for(&self, cruise: f64, gap: f64) -> f64 {
         let share = ((gap - STOP_GAP_M) / (self.spacing_m - STOP_GAP_M)).clamp(0.0, 1.0);
         let v = cruise * share;
@@ -143,6 +170,10 @@ impl Behaviour for LineFollow {
     fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         if self.verdict.is_some() {
             return Vec::new();
+        }
+        self.odometer.observe(world);
+        if let Some(stall) = self.odometer.stall() {
+            return self.fail(stall.to_string());
         }
         let mut intents = Vec::new();
         let ids: Vec<u16> = self.followers.keys().copied().collect();
@@ -190,15 +221,31 @@ impl Behaviour for LineFollow {
                 .map(|f| f.progress_m / self.track.length_m())
                 .fold(f64::INFINITY, f64::min);
             let losses: u32 = self.followers.values().map(|f| f.line_losses).sum();
-            self.verdict = Some(
-                Verdict::success(format!(
-                    "every robot drove {:.0} laps; closest approach {:.0} mm sensor to sensor",
+            let claimed = self.laps * self.track.length_m();
+            let ids = self.followers.keys().copied();
+            let least_m = self.odometer.least_m(ids.clone());
+            let verdict = match self.odometer.short_of(ids, |_| claimed) {
+                Some((id, measured, _)) => Verdict::failure(format!(
+                    "robot {id}: its place on the tape went {:.0} laps but its encoders measured \
+                     {measured:.2} m, short of the {:.2} m ({:.0} % of the laps) that driving them \
+                     takes",
+                    self.laps,
+                    EVIDENCE_SHARE * claimed,
+                    EVIDENCE_SHARE * 100.0
+                )),
+                None => Verdict::success(format!(
+                    "every robot drove {:.0} laps, at least {least_m:.2} m by its encoders; \
+                     closest approach {:.0} mm sensor to sensor",
                     self.laps,
                     self.min_gap_m * 1e3
-                ))
-                .with("laps_min", fewest)
-                .with("min_gap_m", self.min_gap_m)
-                .with("line_losses", f64::from(losses)),
+                )),
+            };
+            self.verdict = Some(
+                verdict
+                    .with("laps_min", fewest)
+                    .with("least_encoder_distance_m", least_m)
+                    .with("min_gap_m", self.min_gap_m)
+                    .with("line_losses", f64::from(losses)),
             );
             for id in self.followers.keys() {
                 intents.push(Intent::Stop { robot: *id });

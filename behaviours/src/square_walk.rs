@@ -2,8 +2,12 @@
 //!
 //! The square is four corners in the world frame. If a robot's link drops mid-walk (its watchdog
 //! then stops it and clears its queue), the walk is planned again from where the robot stands to
-//! the next corner once it is back. Success when every robot finished its moves and its odometry
-//! closes within 10 mm and 5° of its start; the coordinator's report adds the ground truth.
+//! the next corner once it is back. Success when every robot finished its moves, its odometry
+//! closes within 10 mm and 5° of its start, and its encoders measured the walk: a path of at
+//! least 90 % of the square's perimeter (0.36 m for the default 0.1 m side) and turns adding up
+//! to at least 90 % of a full turn (324°). A robot that stands still closes perfectly; the
+//! encoders tell it apart. A robot whose wheels are driven for 3 s without an encoder pulse fails
+//! the walk at once (see [`crate::evidence`]). The coordinator's report adds the ground truth.
 
 use std::collections::BTreeMap;
 use std::f64::consts::{FRAC_PI_2, PI, TAU};
@@ -12,6 +16,7 @@ use protocol::packets::MoveOutcome;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::evidence::{Odometer, EVIDENCE_SHARE};
 
 const SIDE_M: f32 = 0.1;
 const SPEED_MPS: f32 = 0.2;
@@ -35,6 +40,7 @@ struct Walker {
 pub struct SquareWalk {
     side_m: f32,
     walkers: BTreeMap<u16, Walker>,
+    odometer: Odometer,
 }
 
 fn wrap(a: f64) -> f64 {
@@ -54,6 +60,7 @@ impl SquareWalk {
         Ok(Self {
             side_m,
             walkers: BTreeMap::new(),
+            odometer: Odometer::new(),
         })
     }
 
@@ -112,6 +119,7 @@ impl SquareWalk {
 
 impl Behaviour for SquareWalk {
     fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.odometer.observe(world);
         let mut intents = Vec::new();
         for r in &world.robots {
             let mut plan = Vec::new();
@@ -142,6 +150,7 @@ impl Behaviour for SquareWalk {
     }
 
     fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.odometer.observe(world);
         for r in &world.robots {
             if let Some(w) = self.walkers.get_mut(&r.id) {
                 // The last turn is reported finished a coast early and coasts onto its heading
@@ -202,8 +211,43 @@ impl Behaviour for SquareWalk {
         if let Some((id, _)) = self.walkers.iter().find(|(_, w)| w.failed) {
             return Some(Verdict::failure(format!("robot {id}: a move was aborted")));
         }
+        if let Some(stall) = self.odometer.stall() {
+            return Some(Verdict::failure(stall.to_string()));
+        }
         if self.walkers.values().any(|w| w.end.is_none()) {
             return None;
+        }
+        let ids = self.walkers.keys().copied();
+        let least_m = self.odometer.least_m(ids.clone());
+        let least_deg = ids
+            .clone()
+            .map(|id| self.odometer.turned_rad(id).to_degrees())
+            .fold(f64::INFINITY, f64::min);
+        let perimeter = 4.0 * f64::from(self.side_m);
+        let evidence = |v: Verdict| {
+            v.with("least_encoder_distance_m", least_m)
+                .with("least_encoder_turn_deg", least_deg)
+        };
+        if let Some((id, measured, _)) = self.odometer.short_of(ids.clone(), |_| perimeter) {
+            return Some(evidence(Verdict::failure(format!(
+                "robot {id}: its encoders measured a path of {:.0} mm, short of the {:.0} mm the \
+                 square needs ({:.0} % of its perimeter): it did not walk the square",
+                measured * 1e3,
+                EVIDENCE_SHARE * perimeter * 1e3,
+                EVIDENCE_SHARE * 100.0
+            ))));
+        }
+        let full_turn = 360.0;
+        if let Some(id) = ids
+            .clone()
+            .find(|id| self.odometer.turned_rad(*id).to_degrees() < EVIDENCE_SHARE * full_turn)
+        {
+            return Some(evidence(Verdict::failure(format!(
+                "robot {id}: its encoders measured {:.0}° of turning, short of the {:.0}° the \
+                 square's four corners need",
+                self.odometer.turned_rad(id).to_degrees(),
+                EVIDENCE_SHARE * full_turn
+            ))));
         }
         let mut worst_mm: f64 = 0.0;
         let mut worst_deg: f64 = 0.0;
@@ -215,18 +259,23 @@ impl Behaviour for SquareWalk {
         }
         let ok = worst_mm < 10.0 && worst_deg < 5.0;
         let summary = format!(
-            "{} squares walked; worst closure {worst_mm:.1} mm and {worst_deg:.1}° by odometry",
-            self.walkers.len()
+            "{} squares walked; worst closure {worst_mm:.1} mm and {worst_deg:.1}° by odometry; \
+             each robot's encoders measured at least {:.0} mm and {least_deg:.0}° (needed {:.0} mm \
+             and {:.0}°)",
+            self.walkers.len(),
+            least_m * 1e3,
+            EVIDENCE_SHARE * perimeter * 1e3,
+            EVIDENCE_SHARE * full_turn
         );
         let v = if ok {
             Verdict::success(summary)
         } else {
             Verdict::failure(summary)
         };
-        Some(
+        Some(evidence(
             v.with("worst_closure_mm", worst_mm)
                 .with("worst_heading_error_deg", worst_deg),
-        )
+        ))
     }
 }
 
@@ -244,7 +293,7 @@ mod tests {
                     id,
                     connected: true,
                     pose,
-                    odometry: Default::default(),
+                    odometry: pose,
                     state: Default::default(),
                     pending_moves: pending,
                     on_track: None,
@@ -260,6 +309,19 @@ mod tests {
         outcome: MoveOutcome::Completed,
     };
 
+    /// Snapshots of robots 1 and 2 walking the square from `start`, corner by corner.
+    fn walk(b: &mut SquareWalk, start: Pose) {
+        let mut p = start;
+        for k in 0..4 {
+            let h = FRAC_PI_2 * f64::from(k);
+            p.x += 0.1 * h.cos();
+            p.y += 0.1 * h.sin();
+            b.on_snapshot(&world(&[(1, p), (2, p)], 1));
+            p.theta += FRAC_PI_2;
+            b.on_snapshot(&world(&[(1, p), (2, p)], 1));
+        }
+    }
+
     #[test]
     fn queues_eight_moves_per_robot_and_judges_the_closure() {
         let start = Pose {
@@ -271,6 +333,7 @@ mod tests {
         let intents = b.start(&world(&[(1, start), (2, start)], 0));
         assert_eq!(intents.len(), 16);
         assert!(b.verdict().is_none());
+        walk(&mut b, start);
         for id in [1, 2] {
             for _ in 0..8 {
                 b.on_event(id, &DONE, &world(&[], 0));
@@ -291,6 +354,49 @@ mod tests {
         }
         far.on_snapshot(&world(&[(1, Pose { x: 0.32, ..end })], 0));
         assert!(!far.verdict().unwrap().success);
+    }
+
+    #[test]
+    fn a_robot_that_reports_its_moves_done_without_moving_fails() {
+        let start = Pose {
+            x: 0.3,
+            y: 0.3,
+            theta: 0.0,
+        };
+        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
+        b.start(&world(&[(1, start)], 0));
+        for _ in 0..8 {
+            b.on_event(1, &DONE, &world(&[], 0));
+        }
+        b.on_snapshot(&world(&[(1, start)], 0));
+        let v = b.verdict().unwrap();
+        assert!(!v.success, "{v:?}");
+        assert!(
+            v.summary.contains("robot 1") && v.summary.contains("encoders"),
+            "{v:?}"
+        );
+    }
+
+    #[test]
+    fn a_walk_without_its_turns_fails() {
+        let start = Pose {
+            x: 0.3,
+            y: 0.3,
+            theta: 0.0,
+        };
+        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
+        b.start(&world(&[(1, start)], 0));
+        // 0.4 m of path straight out and back, with a single half turn.
+        let out = Pose { x: 0.5, ..start };
+        b.on_snapshot(&world(&[(1, out)], 1));
+        let back = Pose { theta: PI, ..out };
+        b.on_snapshot(&world(&[(1, back)], 1));
+        for _ in 0..8 {
+            b.on_event(1, &DONE, &world(&[], 0));
+        }
+        b.on_snapshot(&world(&[(1, Pose { theta: PI, ..start })], 0));
+        let v = b.verdict().unwrap();
+        assert!(!v.success && v.summary.contains("turning"), "{v:?}");
     }
 
     #[test]

@@ -12,6 +12,12 @@
 //! Each edge is driven by the robot's own locomotion (a turn onto the tape's direction, then a
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
 //! under the line sensor keeps corrected.
+//!
+//! Success: the tasks asked for are done, without deadlock, and every robot's encoders measured
+//! at least 90 % of the tape length of the edges it reported driving, less 2 cm for where it
+//! stood on its first node (a robot whose moves end without its wheels turning has not driven
+//! them). A robot whose wheels are driven for 3 s
+//! without an encoder pulse fails the run at once (see [`crate::evidence`]).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -27,6 +33,7 @@ use simulator::world::graph::TrackGraph;
 use simulator::world::Track;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::moves::{wrap, Route};
 
 /// Driving speed along edges.
@@ -37,6 +44,8 @@ const LOOKAHEAD: f64 = 0.08;
 const MAX_BEND: f64 = 35.0 * std::f64::consts::PI / 180.0;
 /// No robot finishing an edge for this long (simulated) is a deadlock.
 const STALL_LIMIT: Duration = Duration::from_secs(30);
+/// How far from a node a robot standing on it may be, for judging the distance it drove.
+const NODE_SLACK_M: f64 = 0.02;
 /// Search budget per plan; deterministic, unlike a time limit.
 const MAX_EXPANSIONS: u64 = 2_000_000;
 
@@ -76,6 +85,8 @@ struct Bot {
     /// The edge being driven.
     driving: Option<Leg>,
     tasks_done: u32,
+    /// Tape length of the edges it finished driving, metres.
+    edges_m: f64,
     /// A segment was held back by the safety check: plan it again.
     retry: bool,
     rng: ChaCha8Rng,
@@ -101,6 +112,7 @@ pub struct TrafficControl {
     plan_time_max: Duration,
     last_progress: Duration,
     started: Duration,
+    odometer: Odometer,
     verdict: Option<Verdict>,
 }
 
@@ -162,6 +174,7 @@ impl TrafficControl {
                 outstanding: 0,
                 driving: None,
                 tasks_done: 0,
+                edges_m: 0.0,
                 retry: false,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
                 active: true,
@@ -188,6 +201,7 @@ impl TrafficControl {
             plan_time_max: Duration::ZERO,
             last_progress: Duration::ZERO,
             started: Duration::ZERO,
+            odometer: Odometer::new(),
             verdict: None,
         })
     }
@@ -452,15 +466,43 @@ impl TrafficControl {
 
     fn finish(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         let minutes = world.time.saturating_sub(self.started).as_secs_f64() / 60.0;
+        self.odometer.observe(world);
+        // A robot stands within a couple of centimetres of its node, so a robot that drove a
+        // single short edge may have been that much short of it; the slack is given once.
+        let claimed = |id: u16| {
+            let edges_m = self
+                .bots
+                .iter()
+                .find(|b| b.id == id)
+                .map_or(0.0, |b| b.edges_m);
+            (edges_m - NODE_SLACK_M / EVIDENCE_SHARE).max(0.0)
+        };
+        let ids = self.bots.iter().map(|b| b.id);
+        if let Some((id, measured, claim)) = self.odometer.short_of(ids, claimed) {
+            return self.fail(format!(
+                "robot {id}: its encoders measured {measured:.2} m, short of the {:.2} m that the \
+                 edges it reported driving take ({:.0} % of their tape, less {:.0} cm)",
+                EVIDENCE_SHARE * claim,
+                EVIDENCE_SHARE * 100.0,
+                NODE_SLACK_M * 100.0
+            ));
+        }
+        let driven: f64 = self
+            .bots
+            .iter()
+            .map(|b| self.odometer.distance_m(b.id))
+            .sum();
         self.verdict = Some(
             Verdict::success(format!(
-                "{} tasks done by {} robots, {:.1} per minute, {} plans",
+                "{} tasks done by {} robots, {:.1} per minute, {} plans; {driven:.1} m driven \
+                 by the encoders",
                 self.tasks,
                 self.bots.len(),
                 f64::from(self.tasks) / minutes.max(1e-9),
                 self.replans
             ))
             .with("tasks", f64::from(self.tasks))
+            .with("encoder_distance_m", driven)
             .with(
                 "tasks_per_minute",
                 f64::from(self.tasks) / minutes.max(1e-9),
@@ -488,6 +530,10 @@ impl TrafficControl {
     }
 
     fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.odometer.observe(world);
+        if let Some(stall) = self.odometer.stall() {
+            return self.fail(stall.to_string());
+        }
         if world.time.saturating_sub(self.last_progress) > STALL_LIMIT {
             return self.fail(format!(
                 "deadlock: no robot finished an edge for {} s ({} tasks done)",
@@ -600,6 +646,9 @@ impl Behaviour for TrafficControl {
                     match bot.driving {
                         Some(leg) if leg.last => {
                             self.bots[k].driving = None;
+                            if leg.index.is_some() {
+                                self.bots[k].edges_m += self.track.edge_length(leg.edge);
+                            }
                             return match leg.index {
                                 Some(index) => self.arrived(k, index, leg.to, world),
                                 None => {

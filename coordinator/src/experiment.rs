@@ -15,7 +15,7 @@ use robot_actor::link::{Discovered, Discoverer};
 use robot_actor::{Pose, Robot, RobotConfig};
 use simulator::runtime::{self, Pace};
 use simulator::world::{file, presets, World};
-use simulator::{SimConfig, Simulation};
+use simulator::{BodyFault, SimConfig, Simulation};
 use tokio::sync::oneshot;
 
 use crate::instruments::{Hooks, Run};
@@ -56,6 +56,9 @@ pub struct Plan {
     pub params: std::collections::BTreeMap<String, String>,
     /// Link cuts to inject into simulated robots.
     pub faults: Vec<LinkFault>,
+    /// Body faults of simulated robots, by robot id, present from the start (a robot that
+    /// cannot move, or cannot measure that it does, to prove that verdicts need the work done).
+    pub body_faults: Vec<(u16, BodyFault)>,
 }
 
 /// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
@@ -134,6 +137,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         track: Arc::clone(&track),
     };
     (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
+    if !plan.body_faults.is_empty() && plan.transport != Transport::Sim {
+        bail!("body faults can only be injected into simulated robots (transport sim)");
+    }
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
     let (discovered, origins, sim) = match &plan.transport {
@@ -147,13 +153,19 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
                     theta: r.heading_rad,
                 })
                 .collect();
-            let sim = Simulation::new(
+            let mut sim = Simulation::new(
                 world.clone(),
                 SimConfig {
                     seed: Some(plan.seed),
                     ..SimConfig::default()
                 },
             );
+            for &(id, fault) in &plan.body_faults {
+                let i = sim.robot_index(id).ok_or_else(|| {
+                    anyhow!("body fault for robot {id}: no such robot in the world")
+                })?;
+                sim.set_body_fault(i, Some(fault));
+            }
             let pace = if plan.realtime {
                 Pace::WallClock
             } else {

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use behaviours::Registry;
-use coordinator::{Plan, Report, Transport};
+use coordinator::{BodyFault, Plan, Report, Transport};
 
 fn run(
     behaviour: &str,
@@ -14,7 +14,22 @@ fn run(
     seed: u64,
     params: &[(&str, &str)],
 ) -> Report {
-    let plan = Plan {
+    coordinator::actor_system(true)
+        .block_on(coordinator::run(
+            plan(behaviour, world, robots, seed, params),
+            &Registry::builtin(),
+        ))
+        .expect("experiment runs")
+}
+
+fn plan(
+    behaviour: &str,
+    world: Option<&str>,
+    robots: Option<usize>,
+    seed: u64,
+    params: &[(&str, &str)],
+) -> Plan {
+    Plan {
         behaviour: behaviour.into(),
         world: world.map(Into::into),
         robots,
@@ -27,10 +42,41 @@ fn run(
             .map(|(k, v)| (k.to_string(), v.to_string()))
             .collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
-    };
-    coordinator::actor_system(true)
-        .block_on(coordinator::run(plan, &Registry::builtin()))
-        .expect("experiment runs")
+        body_faults: Vec::new(),
+    }
+}
+
+/// Runs `behaviour` on its own world with robot `robot` (its id) broken by `fault`, and checks
+/// that the verdict is a failure naming that robot and its encoders, reached well before the
+/// time limit.
+fn broken(
+    behaviour: &str,
+    world: Option<&str>,
+    robots: Option<usize>,
+    params: &[(&str, &str)],
+    robot: u16,
+    fault: BodyFault,
+) -> Report {
+    let mut p = plan(behaviour, world, robots, 1, params);
+    p.body_faults.push((robot, fault));
+    // A stall shows within seconds; the limit only keeps a regression from hanging CI.
+    p.duration = Duration::from_secs(120);
+    let r = coordinator::actor_system(true)
+        .block_on(coordinator::run(p, &Registry::builtin()))
+        .expect("experiment runs");
+    assert!(!r.verdict.success, "{r}");
+    let why = &r.verdict.summary;
+    assert!(
+        why.contains(&format!("robot {robot}")) && why.contains("encoder"),
+        "the verdict names the robot and its missing encoder evidence: {r}"
+    );
+    assert!(r.experiment_time < Duration::from_secs(20), "{r}");
+    r
+}
+
+/// Id of the `k`-th robot of a world.
+fn robot_id(world: &str, k: usize) -> u16 {
+    coordinator::load_world(world).unwrap().robots[k].id
 }
 
 /// A metric of the verdict, by name.
@@ -193,4 +239,73 @@ fn traffic_control_does_100_tasks_with_8_robots_on_junction_and_50_on_a_grid() {
         let tasks = metric(&r, "tasks");
         assert!(tasks.is_some_and(|t| t >= 100.0), "{world}: {r}");
     }
+}
+
+#[test]
+fn square_walk_fails_a_robot_whose_wheels_are_jammed() {
+    let id = robot_id("open", 1);
+    let r = broken(
+        "square_walk",
+        None,
+        Some(2),
+        &[],
+        id,
+        BodyFault::JammedWheels,
+    );
+    let truth = r.robots.iter().find(|x| x.id == id).unwrap();
+    assert!(truth.distance_m.unwrap() < 0.002, "it never moved: {r}");
+}
+
+#[test]
+fn square_walk_fails_a_robot_whose_encoders_are_dead() {
+    // The robot of the report: its firmware still runs and answers, but no pulse is counted.
+    let id = robot_id("open", 0);
+    broken(
+        "square_walk",
+        None,
+        Some(1),
+        &[],
+        id,
+        BodyFault::DeadEncoders,
+    );
+}
+
+#[test]
+fn line_follow_fails_a_robot_whose_wheels_are_jammed() {
+    let id = robot_id("oval", 0);
+    broken("line_follow", None, None, &[], id, BodyFault::JammedWheels);
+}
+
+#[test]
+fn cooperative_push_fails_a_pusher_whose_wheels_are_jammed() {
+    let id = robot_id("push", 1);
+    broken(
+        "cooperative_push",
+        None,
+        None,
+        &[],
+        id,
+        BodyFault::JammedWheels,
+    );
+}
+
+#[test]
+fn token_ring_fails_a_robot_whose_wheels_are_jammed() {
+    // The last to start, two seconds in: the stall still shows within seconds of that.
+    let world = coordinator::load_world("ring").unwrap();
+    let id = world.robots.last().unwrap().id;
+    broken("token_ring", None, None, &[], id, BodyFault::JammedWheels);
+}
+
+#[test]
+fn traffic_control_fails_a_robot_whose_wheels_are_jammed() {
+    let id = robot_id("junction", 0);
+    broken(
+        "traffic_control",
+        None,
+        None,
+        &[("tasks", "5")],
+        id,
+        BodyFault::JammedWheels,
+    );
 }

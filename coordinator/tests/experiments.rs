@@ -22,6 +22,7 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
         duration: Duration::from_secs(60),
         params: Default::default(),
         faults: Vec::new(),
+        body_faults: Vec::new(),
     }
 }
 

@@ -27,6 +27,7 @@ fn plan(behaviour: &str, transport: Transport) -> Plan {
         duration: Duration::from_secs(150),
         params: Default::default(),
         faults: Vec::new(),
+        body_faults: Vec::new(),
     }
 }
 

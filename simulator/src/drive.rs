@@ -37,6 +37,13 @@ impl WheelState {
         self.current_a = (v - m.k_t * self.omega) / m.resistance_ohm;
     }
 
+    /// The wheel is blocked: it does not turn, and the motor draws the stall current of `duty`
+    /// from a battery at `volts`.
+    pub fn jam(&mut self, m: &MotorSpec, duty: f64, volts: f64) {
+        self.omega = 0.0;
+        self.current_a = volts * duty.clamp(-1.0, 1.0) / m.resistance_ohm;
+    }
+
     /// Rim speed, m/s.
     pub fn rim_speed(&self, radius: f64) -> f64 {
         self.omega * radius

@@ -12,6 +12,6 @@ pub mod sim;
 pub mod spec;
 pub mod world;
 
-pub use sim::{SimConfig, Simulation};
+pub use sim::{BodyFault, SimConfig, Simulation};
 pub use spec::RobotSpec;
 pub use world::World;

@@ -90,6 +90,41 @@ pub struct Contact {
     pub at_s: f64,
 }
 
+/// A physical fault of one robot's body, injected to test what the host can tell from what the
+/// robot reports. The firmware runs on and still answers; only the body misbehaves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BodyFault {
+    /// Both wheels are blocked against the chassis: the motors draw stall current and turn
+    /// nothing, the encoders never tick, and the tyres hold the body where it stands.
+    JammedWheels,
+    /// Both encoders are dead: the wheels turn and the robot moves, but the firmware counts no
+    /// pulse (and so keeps raising the duty of a wheel it believes stands still).
+    DeadEncoders,
+}
+
+impl BodyFault {
+    /// Every fault with its name as [`BodyFault::from_str`](std::str::FromStr) takes it.
+    pub const NAMES: [(&'static str, BodyFault); 2] = [
+        ("jammed-wheels", BodyFault::JammedWheels),
+        ("dead-encoders", BodyFault::DeadEncoders),
+    ];
+}
+
+impl std::str::FromStr for BodyFault {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::NAMES
+            .iter()
+            .find(|(name, _)| *name == s)
+            .map(|(_, f)| *f)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Self::NAMES.iter().map(|(n, _)| *n).collect();
+                format!("unknown body fault {s:?}: expected {}", names.join(" or "))
+            })
+    }
+}
+
 /// One simulated PocketBot2.
 pub struct SimRobot {
     id: u16,
@@ -104,6 +139,7 @@ pub struct SimRobot {
     connected: bool,
     distance_m: f64,
     pose: Pose,
+    fault: Option<BodyFault>,
 }
 
 impl SimRobot {
@@ -130,6 +166,10 @@ impl SimRobot {
     /// Bytes waiting on the link towards the robot and towards the host.
     pub fn link_queued_bytes(&self) -> (usize, usize) {
         self.link.queued_bytes()
+    }
+    /// The body fault injected, if any.
+    pub fn body_fault(&self) -> Option<BodyFault> {
+        self.fault
     }
     /// Whether the link is up.
     pub fn link_up(&self) -> bool {
@@ -308,6 +348,7 @@ impl Simulation {
                     y: start.position.y,
                     theta: start.heading_rad,
                 },
+                fault: None,
             });
         }
         owners.sort_by_key(|&(c, _)| c.into_raw_parts());
@@ -464,6 +505,12 @@ impl Simulation {
     /// Cuts (`false`) or restores (`true`) robot `i`'s link, as a fault.
     pub fn set_link_up(&mut self, i: usize, up: bool) {
         self.robots[i].link.set_up(up);
+    }
+
+    /// Injects (`Some`) or repairs (`None`) a fault of robot `i`'s body; it lasts through
+    /// reboots, as a broken part would.
+    pub fn set_body_fault(&mut self, i: usize, fault: Option<BodyFault>) {
+        self.robots[i].fault = fault;
     }
 
     /// Reboots robot `i`'s firmware: RAM state is lost, the stored settings image is loaded again,
@@ -803,9 +850,15 @@ fn drive_robot(
     let radius = spec.wheel_radius_m();
     let volts = f64::from(r.firmware.board().battery_mv) / 1000.0;
     let pwm = r.firmware.board().pwm;
+    let jammed = r.fault == Some(BodyFault::JammedWheels);
+    let counting = r.fault != Some(BodyFault::DeadEncoders);
     let omega_start = [r.wheels[0].omega, r.wheels[1].omega];
     for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
-        w.drive(&spec.motor, f64::from(duty) / 1000.0, volts, dt);
+        if jammed {
+            w.jam(&spec.motor, f64::from(duty) / 1000.0, volts);
+        } else {
+            w.drive(&spec.motor, f64::from(duty) / 1000.0, volts, dt);
+        }
     }
     let mass = f64::from(body.mass());
     let inertia = f64::from(body.mass_properties().effective_angular_inertia());
@@ -828,20 +881,27 @@ fn drive_robot(
         let k_long = inverse_mass_along(mass, inertia, arm, fwd);
         let k_lat = inverse_mass_along(mass, inertia, arm, left);
         let wheel = &mut r.wheels[k];
-        let mut j_long = grip_impulse(
-            wheel.rim_speed(radius),
-            ground_long,
-            k_long,
-            &spec.motor,
-            radius,
-        );
+        // A blocked wheel is part of the chassis: the tyre brakes the body alone.
+        let mut j_long = if jammed {
+            -ground_long / k_long
+        } else {
+            grip_impulse(
+                wheel.rim_speed(radius),
+                ground_long,
+                k_long,
+                &spec.motor,
+                radius,
+            )
+        };
         let mut j_lat = -ground_lat / k_lat;
         let total = j_long.hypot(j_lat);
         if total > grip {
             j_long *= grip / total;
             j_lat *= grip / total;
         }
-        wheel.apply_tyre(&spec.motor, radius, j_long);
+        if !jammed {
+            wheel.apply_tyre(&spec.motor, radius, j_long);
+        }
         let j = [
             fwd[0] * j_long + left[0] * j_lat,
             fwd[1] * j_long + left[1] * j_lat,
@@ -855,6 +915,9 @@ fn drive_robot(
         let capture = spec.capture_hz;
         let edges = &mut board.edges;
         r.wheels[k].advance(spec, omega_start[k], dt, |frac| {
+            if !counting {
+                return;
+            }
             let t = t0 as f64 * 1e-9 + frac * dt;
             let ticks = (t * capture).round();
             let at = Instant::from_nanos((ticks / capture * 1e9).round() as u64);

@@ -321,3 +321,34 @@ fn many_robots_stepped_on_all_cores_are_still_deterministic() {
     let moved = a.iter().filter(|p| p.x != 0.0).count();
     assert_eq!(moved, 300);
 }
+
+#[test]
+fn jammed_wheels_hold_the_robot_and_dead_encoders_hide_its_motion() {
+    let drive = |fault: Option<simulator::BodyFault>| {
+        let mut sim = connected(world(OPEN), 1);
+        sim.set_body_fault(0, fault);
+        send(
+            &mut sim,
+            0,
+            StraightMovement {
+                distance_m: 0.1,
+                speed_mps: 0.2,
+                move_id: 1,
+            },
+        );
+        run(&mut sim, Duration::from_secs(2), |_, _| false);
+        let e = sim.robots()[0].firmware().state().encoders;
+        let ticks = e.left_ticks.unsigned_abs() + e.right_ticks.unsigned_abs();
+        (sim.robots()[0].distance_m(), ticks)
+    };
+    let (healthy_m, healthy_ticks) = drive(None);
+    assert!((healthy_m - 0.1).abs() < 0.01, "{healthy_m} m");
+    assert!(healthy_ticks > 100, "{healthy_ticks} pulses");
+    let (jammed_m, jammed_ticks) = drive(Some(simulator::BodyFault::JammedWheels));
+    assert!(jammed_m < 1e-4, "a jammed robot moved {jammed_m} m");
+    assert_eq!(jammed_ticks, 0);
+    let (blind_m, blind_ticks) = drive(Some(simulator::BodyFault::DeadEncoders));
+    // The firmware never sees the move progress, so it drives on, harder, past its 0.1 m.
+    assert!(blind_m > 0.1, "{blind_m} m");
+    assert_eq!(blind_ticks, 0);
+}

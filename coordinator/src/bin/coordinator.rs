@@ -158,6 +158,7 @@ fn plan(args: &Args) -> Result<Plan> {
         duration: Duration::from_secs_f64(args.duration),
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
+        body_faults: Vec::new(),
     })
 }
 
@@ -300,6 +301,7 @@ fn replay(
         duration: recording.end + Duration::from_secs(5),
         params: info.params.clone(),
         faults: Vec::new(),
+        body_faults: Vec::new(),
     };
     let plot = plot.map(|p| (p.to_path_buf(), plan.clone()));
     let instruments = Instruments {

@@ -38,6 +38,20 @@ struct Args {
     /// List the built-in worlds and exit.
     #[arg(long)]
     list_worlds: bool,
+    /// Break robot ID's body, as ID:jammed-wheels or ID:dead-encoders (repeatable): its firmware
+    /// still runs and answers, but it cannot move, or cannot measure that it does.
+    #[arg(long, value_name = "ID:FAULT", value_parser = parse_body_fault)]
+    body_fault: Vec<(u16, simulator::BodyFault)>,
+}
+
+fn parse_body_fault(s: &str) -> Result<(u16, simulator::BodyFault), String> {
+    let (id, fault) = s
+        .split_once(':')
+        .ok_or_else(|| format!("{s:?}: expected ID:FAULT, e.g. 2:jammed-wheels"))?;
+    let id = id
+        .parse()
+        .map_err(|_| format!("{s:?}: robot id {id:?} is not a number from 0 to 65535"))?;
+    Ok((id, fault.parse()?))
 }
 
 fn load_world(name: &str) -> Result<simulator::World> {
@@ -72,13 +86,19 @@ async fn main() -> Result<()> {
         return Ok(());
     }
     let world = load_world(&args.world)?;
-    let sim = Simulation::new(
+    let mut sim = Simulation::new(
         world,
         SimConfig {
             seed: args.seed,
             ..SimConfig::default()
         },
     );
+    for &(id, fault) in &args.body_fault {
+        let i = sim
+            .robot_index(id)
+            .with_context(|| format!("--body-fault {id}: no robot {id} in the world"))?;
+        sim.set_body_fault(i, Some(fault));
+    }
     let pace = if args.fast {
         Pace::Unpaced
     } else {

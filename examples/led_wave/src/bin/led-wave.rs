@@ -23,6 +23,7 @@ fn main() -> anyhow::Result<()> {
         duration: Duration::from_secs(60),
         params: Default::default(),
         faults: Vec::new(),
+        body_faults: Vec::new(),
     };
     let system = coordinator::actor_system(true);
     let report = system.block_on(coordinator::run(plan, &registry))?;
