@@ -13,7 +13,7 @@ pub mod traffic_control;
 
 pub use actor::BehaviourActor;
 pub use api::{
-    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Registry, RobotView,
+    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, LookedUp, Registry, RobotView,
     Verdict, WorldSnapshot,
 };
 pub use protocol::packets::MoveOutcome;
