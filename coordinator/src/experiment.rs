@@ -8,11 +8,11 @@ use std::time::Duration;
 use actix::Actor;
 use anyhow::{anyhow, bail, Context as _, Result};
 use behaviours::{BehaviourConfig, Registry};
+use protocol::packets::Hello;
 use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
 use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::{Discovered, Discoverer};
-use protocol::packets::Hello;
 use robot_actor::{Pose, Robot, RobotConfig};
 use simulator::runtime::{self, Pace};
 use simulator::world::{file, presets, World};
@@ -139,7 +139,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         ..BehaviourConfig::default()
     };
     (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
-    probe.check_params(&plan.behaviour).map_err(|e| anyhow!(e))?;
+    probe
+        .check_params(&plan.behaviour)
+        .map_err(|e| anyhow!(e))?;
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
     let (discovered, origins, sim) = match &plan.transport {
@@ -197,14 +199,7 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     let observer = hooks.observer(&world, sim.clone());
     // A robot that cannot answer within the whole time limit will not be waited for longer.
     let deadline = HELLO_DEADLINE.min(plan.duration);
-    let robots = connect_all(
-        &discovered,
-        origins.as_deref(),
-        &world,
-        &observer,
-        deadline,
-    )
-    .await?;
+    let robots = connect_all(&discovered, origins.as_deref(), &world, &observer, deadline).await?;
     let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
     let config = BehaviourConfig {
         robots: ids,

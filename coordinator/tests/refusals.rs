@@ -29,7 +29,10 @@ fn assert_refused(out: &Output, parts: &[&str]) -> String {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(2), "{stderr}\n{stdout}");
     assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(!stdout.contains("verdict"), "a report after a refusal: {stdout}");
+    assert!(
+        !stdout.contains("verdict"),
+        "a report after a refusal: {stdout}"
+    );
     for part in parts {
         assert!(stderr.contains(part), "{part:?} not in: {stderr}");
     }
@@ -112,7 +115,10 @@ fn worlds_without_room_for_the_robots_are_refused() {
 #[test]
 fn a_truncated_world_file_names_its_line_and_what_is_wrong() {
     let text = presets::preset_text("open").expect("preset");
-    let cut = text.find("heading_deg = ").expect("a heading in the open world") + 14;
+    let cut = text
+        .find("heading_deg = ")
+        .expect("a heading in the open world")
+        + 14;
     let truncated = scratch("truncated.toml");
     std::fs::write(&truncated, &text[..cut]).expect("world file written");
     let path = truncated.to_str().expect("utf-8 path");

@@ -42,7 +42,7 @@ struct Args {
     #[arg(long)]
     realtime: bool,
     /// Time limit in seconds (simulated time when simulating), more than 0 and at most 1000000.
-    #[arg(long, default_value = "600", value_parser = parse_duration)]
+    #[arg(long, default_value = "600", value_parser = parse_duration, allow_negative_numbers = true)]
     duration: Duration,
     /// Also write the report as JSON to this file.
     #[arg(long)]
