@@ -1160,10 +1160,10 @@ impl Handler<Close> for RobotActor {
 /// (a wrong port, or a robot server not started yet).
 fn describe_connect_error(e: &crate::link::LinkError) -> String {
     match e {
-        crate::link::LinkError::Connect { peer, source }
+        crate::link::LinkError::Connect { source, .. }
             if source.kind() == std::io::ErrorKind::ConnectionRefused =>
         {
-            format!("connection refused by {peer} (nothing listens there)")
+            "connection refused (nothing listens there)".to_owned()
         }
         other => other.to_string(),
     }
