@@ -436,7 +436,7 @@ mod tests {
         let registry = Registry::builtin();
         let expected: &[(&str, &[&str])] = &[
             ("cooperative_push", &["box", "laps", "push", "speed"]),
-            ("line_follow", &["laps", "speed", "spacing", "spread"]),
+            ("line_follow", &["laps", "spacing", "speed", "spread"]),
             ("square_walk", &["side"]),
             ("token_ring", &["reverse", "rounds", "speed"]),
             ("traffic_control", &["goals", "quota", "tasks"]),
