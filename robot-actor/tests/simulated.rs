@@ -312,13 +312,16 @@ impl Connector for Stranger {
     }
 }
 
+/// A change to this build's hello.
+type Alter = fn(&mut packets::Hello);
+
 #[test]
 fn a_robot_of_another_protocol_or_layout_is_refused_and_its_link_closed() {
     use robot_actor::Incompatibility as I;
     let state = <protocol::RobotState as protocol::Layout>::LAYOUT.hash;
     let settings = protocol::SETTINGS_LAYOUT_HASH;
     let version = protocol::PROTOCOL_VERSION;
-    let cases: [(fn(&mut packets::Hello), Vec<I>); 4] = [
+    let cases: [(Alter, Vec<I>); 4] = [
         (
             |h| h.protocol_version += 1,
             vec![I::ProtocolVersion {
