@@ -6,14 +6,15 @@
 //! microcontroller timer, in the simulator's physics time, and in host tests.
 
 use heapless::{Deque, Vec};
+use protocol::packets::Nack;
 use protocol::packets::{
     self, AnyPacket, CalibrationAction, DriveMode, Hello, LogLevel, Mark, MoveOutcome, NackReason,
     Packet, PacketType, ReflectorMode, SETTINGS_CHUNK,
 };
-use protocol::settings::Settings;
+use protocol::settings::{Settings, SettingsError};
 use protocol::slip::{self, SlipDecoder};
 use protocol::state::{RobotState, LINE_CALIBRATING, LINE_FOLLOWING, LINE_LOST};
-use protocol::{Frame, MAX_PACKET};
+use protocol::{Error, Frame, MAX_PACKET};
 
 use crate::hal::{Board, EncoderEdge, IrFrame, Side, Wheel};
 use crate::line_follow::LineFollower;
@@ -81,6 +82,8 @@ pub struct Firmware<B: Board> {
     last_main: Option<Instant>,
     now: Instant,
     started: bool,
+    /// Why the stored settings were refused at boot, reported once the link runs.
+    boot_refusal: Option<SettingsError>,
 }
 
 impl<B: Board> Firmware<B> {
@@ -88,8 +91,15 @@ impl<B: Board> Firmware<B> {
     pub fn new(mut board: B) -> Self {
         let mut settings = Settings::default();
         let mut image = [0u8; Settings::SIZE];
+        let mut boot_refusal = None;
         if board.load(&mut image).is_ok() {
-            settings = bytemuck::pod_read_unaligned(&image);
+            let stored: Settings = bytemuck::pod_read_unaligned(&image);
+            // A corrupt or out-of-range image would run the loops with nonsense (a zero period
+            // floods overruns); the factory image is safe, and the host can write settings again.
+            match stored.validate() {
+                Ok(()) => settings = stored,
+                Err(e) => boot_refusal = Some(e),
+            }
         }
         board.set_pwm(0, 0);
         Self {
@@ -117,6 +127,7 @@ impl<B: Board> Firmware<B> {
             last_main: None,
             now: Instant::ZERO,
             started: false,
+            boot_refusal,
         }
     }
 
@@ -209,6 +220,9 @@ impl<B: Board> Firmware<B> {
         self.scheduler.schedule(Channel::IrTransmit, now);
         self.scheduler.schedule(Channel::IrReport, now);
         crate::fw_log!(self, Info, "boot", "robot {} up", self.robot_id());
+        if let Some(e) = self.boot_refusal.take() {
+            crate::fw_log!(self, Warn, "boot", "stored settings refused: {}", e);
+        }
     }
 
     /// Encoder interrupt entry point: one edge of `wheel` captured at `at`.
@@ -246,8 +260,18 @@ impl<B: Board> Firmware<B> {
             Ok(frame) => {
                 self.watchdog.feed(now);
                 self.state.link.rx_packets = self.state.link.rx_packets.wrapping_add(1);
-                self.handle(frame.packet());
+                self.handle(frame.packet(), frame.payload().len());
             }
+            // The checksum held, so the type code is what the host sent: tell it, then drop.
+            Err(Error::DecodeUnknownType(code)) => {
+                self.rx_error();
+                self.nack_code(code, NackReason::UnknownType, Nack::NO_FIELD);
+            }
+            Err(Error::DecodeBadPayloadLength(t)) => {
+                self.rx_error();
+                self.nack(t, NackReason::BadLength);
+            }
+            // A bad checksum or a short frame says nothing trustworthy about its type.
             Err(e) => {
                 self.rx_error();
                 crate::fw_log!(self, Debug, "protocol", "dropped frame: {}", e);
@@ -305,13 +329,23 @@ impl<B: Board> Firmware<B> {
     }
 
     fn nack(&mut self, t: PacketType, reason: NackReason) {
-        self.send(&packets::Nack {
-            packet_type: t as u8,
+        self.nack_code(t as u8, reason, Nack::NO_FIELD);
+    }
+
+    fn nack_code(&mut self, code: u8, reason: NackReason, field_offset: u16) {
+        self.send(&Nack {
+            packet_type: code,
             reason: reason as u8,
+            field_offset,
         });
     }
 
-    fn handle(&mut self, packet: AnyPacket) {
+    fn settings_nack(&mut self, t: PacketType, e: SettingsError) {
+        self.nack_code(t as u8, e.nack_reason(), e.field_offset());
+    }
+
+    /// Carries out one checked packet whose frame carried `payload_len` payload bytes.
+    fn handle(&mut self, packet: AnyPacket, payload_len: usize) {
         let t = packet.packet_type();
         match packet {
             AnyPacket::Ping(p) => {
@@ -414,9 +448,12 @@ impl<B: Board> Firmware<B> {
             AnyPacket::IrMessage(m) => self.ir_message = m.message,
             AnyPacket::SettingsUpdate(u) => {
                 let (offset, bytes) = (usize::from(u.offset), u.bytes());
-                match self.settings.write(offset, bytes) {
+                match u
+                    .check_carried(payload_len)
+                    .and_then(|()| self.settings.update(offset, bytes))
+                {
                     Ok(()) => self.settings_changed(),
-                    Err(_) => self.nack(t, NackReason::BadSettingsRange),
+                    Err(e) => self.settings_nack(t, e),
                 }
             }
             AnyPacket::SettingsRead(r) => {
@@ -442,9 +479,16 @@ impl<B: Board> Firmware<B> {
             }
             AnyPacket::SettingsRestoreDefaults(_) => {
                 // The identity belongs to this robot, not to the factory image.
-                let identity = self.settings.identity;
-                self.settings = Settings::default();
-                self.settings.identity = identity;
+                let restored = Settings {
+                    identity: self.settings.identity,
+                    ..Settings::default()
+                };
+                // The live identity was validated when written; should it not pass, the factory
+                // identity is the one known-good choice.
+                self.settings = match restored.validate() {
+                    Ok(()) => restored,
+                    Err(_) => Settings::default(),
+                };
                 self.settings_changed();
             }
             AnyPacket::ReflectorConfig(c) => {

@@ -71,6 +71,17 @@ pub enum RobotError {
         /// Why.
         reason: Option<NackReason>,
     },
+    /// The robot refused a settings write; `field` is the offending field's dotted path when the
+    /// robot named one.
+    #[error("robot {robot}: refused settings write: {reason:?}{}", .field.as_deref().map(|f| format!(" in {f}")).unwrap_or_default())]
+    SettingRefused {
+        /// Robot id.
+        robot: u16,
+        /// Dotted path of the offending field (`"geometry.ticks_per_rev"`), if named.
+        field: Option<String>,
+        /// Why.
+        reason: Option<NackReason>,
+    },
     /// A settings range is not whole fields inside the structure.
     #[error("bad settings range at {offset} (+{len})")]
     BadSettingsRange {
@@ -615,6 +626,25 @@ impl RobotActor {
         }
     }
 
+    /// A refused write fails its pending `set`. The robot answers in order, so every earlier
+    /// write's read-back has already arrived and the oldest pending write is the refused one. It
+    /// is not replayed after a reconnect.
+    fn on_settings_refused(&mut self, n: packets::Nack, reason: Option<NackReason>) {
+        let offset = n.field_offset;
+        let field = (offset != packets::Nack::NO_FIELD).then(|| {
+            Settings::path_of(usize::from(offset))
+                .map_or_else(|| format!("offset {offset}"), |p| p.to_string())
+        });
+        if let Some((write_offset, _, _, reply)) = self.reads.pop_front() {
+            self.host_writes.remove(&write_offset);
+            let _ = reply.send(Err(RobotError::SettingRefused {
+                robot: self.robot_id(),
+                field,
+                reason,
+            }));
+        }
+    }
+
     fn on_settings_data(&mut self, d: packets::SettingsData) {
         let offset = usize::from(d.offset);
         let bytes = d.bytes().to_vec();
@@ -720,6 +750,9 @@ impl RobotActor {
                     if let Some(w) = self.saves.pop_front() {
                         let _ = w.send(Err(err.clone()));
                     }
+                }
+                if n.packet_type == PacketType::SettingsUpdate as u8 {
+                    self.on_settings_refused(n, reason);
                 }
                 self.emit(RobotEventKind::Refused(n));
             }

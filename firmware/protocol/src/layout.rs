@@ -18,6 +18,8 @@ pub struct TypeInfo {
     pub fields: &'static [FieldInfo],
     /// Element type and count of an array; `None` otherwise.
     pub array: Option<(&'static TypeInfo, usize)>,
+    /// The type's doc comment, lines joined; empty for primitives and arrays.
+    pub doc: &'static str,
 }
 
 /// One named field of a wire struct.
@@ -29,6 +31,8 @@ pub struct FieldInfo {
     pub offset: usize,
     /// Layout of the field's type.
     pub ty: &'static TypeInfo,
+    /// The field's doc comment, lines joined.
+    pub doc: &'static str,
 }
 
 /// A type whose wire layout is known at compile time.
@@ -86,6 +90,7 @@ macro_rules! primitive_layout {
                 hash: primitive_hash(stringify!($t), core::mem::size_of::<$t>()),
                 fields: &[],
                 array: None,
+                doc: "",
             };
         }
     )*};
@@ -99,12 +104,18 @@ impl<T: Layout, const N: usize> Layout for [T; N] {
         hash: array_hash(T::LAYOUT.hash, N),
         fields: &[],
         array: Some((&T::LAYOUT, N)),
+        doc: "",
     };
 }
 
 impl TypeInfo {
     /// Looks up a field by dotted path (`"line_pid.kp"`, `"line.white[3]"`), giving (offset, size).
     pub fn field(&self, path: &str) -> Option<(usize, usize)> {
+        self.field_type(path).map(|(offset, ty)| (offset, ty.size))
+    }
+
+    /// Looks up a field by dotted path, giving its offset and layout.
+    pub fn field_type(&self, path: &str) -> Option<(usize, &TypeInfo)> {
         let mut ty = self;
         let mut offset = 0usize;
         for part in path.split('.') {
@@ -124,7 +135,7 @@ impl TypeInfo {
                 ty = elem;
             }
         }
-        Some((offset, ty.size))
+        Some((offset, ty))
     }
 
     /// Whether `offset` is where some leaf value (a primitive, possibly inside an array) begins,
@@ -147,6 +158,36 @@ impl TypeInfo {
             Some(f) => f.ty.is_leaf_boundary(offset - f.offset),
             None => offset == 0,
         }
+    }
+
+    /// The dotted path of the leaf value that contains `offset` (`"proximity.range_mm[2]"`).
+    pub fn path_of(&self, offset: usize) -> Option<FieldPath> {
+        let mut path = FieldPath {
+            parts: [("", None); MAX_DEPTH],
+            depth: 0,
+        };
+        let mut ty = self;
+        let mut rest = offset;
+        if rest >= ty.size {
+            return None;
+        }
+        while !ty.fields.is_empty() {
+            let f = ty
+                .fields
+                .iter()
+                .find(|f| rest >= f.offset && rest < f.offset + f.ty.size)?;
+            rest -= f.offset;
+            ty = f.ty;
+            let mut index = None;
+            if let Some((elem, _)) = ty.array {
+                index = Some(rest / elem.size);
+                rest %= elem.size;
+                ty = elem;
+            }
+            *path.parts.get_mut(path.depth)? = (f.name, index);
+            path.depth += 1;
+        }
+        Some(path)
     }
 
     /// Calls `visit` with the dotted path, offset and type of every leaf value, in offset order.
@@ -175,23 +216,48 @@ impl TypeInfo {
     }
 }
 
+const MAX_DEPTH: usize = 8;
+
+/// A dotted field path such as `line_sensor.white[3]`, printed by its `Display`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FieldPath {
+    parts: [(&'static str, Option<usize>); MAX_DEPTH],
+    depth: usize,
+}
+
+impl core::fmt::Display for FieldPath {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        for (i, (name, index)) in self.parts[..self.depth].iter().enumerate() {
+            if i > 0 {
+                f.write_str(".")?;
+            }
+            f.write_str(name)?;
+            if let Some(k) = index {
+                write!(f, "[{k}]")?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Declares a `#[repr(C, packed)]` plain-old-data wire struct and derives its [`Layout`].
 ///
 /// Packed sub-structs have alignment 1, so references to them are sound; scalar fields are read
-/// and written by value only.
+/// and written by value only. Doc comments are the only attributes accepted; they are kept in the
+/// layout so the protocol document's tables are generated from the same source.
 #[macro_export]
 macro_rules! wire_struct {
     (
-        $(#[$meta:meta])*
+        $(#[doc = $doc:literal])*
         pub struct $name:ident {
-            $( $(#[$fmeta:meta])* pub $field:ident : $fty:ty ),* $(,)?
+            $( $(#[doc = $fdoc:literal])* pub $field:ident : $fty:ty ),* $(,)?
         }
     ) => {
-        $(#[$meta])*
+        $(#[doc = $doc])*
         #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
         #[repr(C, packed)]
         pub struct $name {
-            $( $(#[$fmeta])* pub $field: $fty ),*
+            $( $(#[doc = $fdoc])* pub $field: $fty ),*
         }
 
         impl $crate::layout::Layout for $name {
@@ -201,6 +267,7 @@ macro_rules! wire_struct {
                         name: stringify!($field),
                         offset: core::mem::offset_of!($name, $field),
                         ty: &<$fty as $crate::layout::Layout>::LAYOUT,
+                        doc: concat!($($fdoc),*),
                     } ),*
                 ];
                 $crate::layout::TypeInfo {
@@ -213,6 +280,7 @@ macro_rules! wire_struct {
                     ),
                     fields: FIELDS,
                     array: None,
+                    doc: concat!($($doc),*),
                 }
             };
         }
@@ -281,6 +349,22 @@ mod tests {
         assert_ne!(Outer::LAYOUT.hash, Swapped::LAYOUT.hash);
         assert_ne!(<[u16; 3]>::LAYOUT.hash, <[u16; 4]>::LAYOUT.hash);
         assert_ne!(<[u16; 3]>::LAYOUT.hash, <[i16; 3]>::LAYOUT.hash);
+    }
+
+    #[test]
+    fn paths_name_the_leaf_under_an_offset() {
+        let t = &Outer::LAYOUT;
+        assert_eq!(t.path_of(0).unwrap().to_string(), "x");
+        assert_eq!(t.path_of(1).unwrap().to_string(), "x");
+        assert_eq!(t.path_of(4).unwrap().to_string(), "inner.b");
+        assert_eq!(t.path_of(11).unwrap().to_string(), "arr[2]");
+        assert_eq!(t.path_of(13), None);
+    }
+
+    #[test]
+    fn doc_comments_are_kept() {
+        assert_eq!(Outer::LAYOUT.doc, " Test outer.");
+        assert_eq!(Outer::LAYOUT.fields[2].doc, " arr");
     }
 
     #[test]

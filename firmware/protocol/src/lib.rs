@@ -10,13 +10,16 @@ pub mod slip;
 pub mod state;
 
 pub use frame::{decode, encode, Frame, Header, HEADER_LEN, MAX_PACKET, MAX_PAYLOAD};
+pub use layout::FieldPath;
 pub use layout::{FieldInfo, Layout, TypeInfo};
 pub use packets::{AnyPacket, Packet, PacketType};
 pub use settings::{Settings, SettingsError, SETTINGS_LAYOUT_HASH};
 pub use state::{ReducedState, RobotState};
 
 /// Version of the wire protocol spoken by this crate; carried in the hello packet.
-pub const PROTOCOL_VERSION: u16 = 1;
+///
+/// Version 2 added `field_offset` to the Nack packet and the Nack reasons 5 to 7.
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// Everything that can go wrong encoding or decoding; variant names say phase and cause.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

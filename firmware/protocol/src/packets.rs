@@ -1,4 +1,4 @@
-//! Every packet of protocol version 1 as a packed plain-old-data struct, and the small enums
+//! Every packet of the protocol version [`PROTOCOL_VERSION`](crate::PROTOCOL_VERSION) as a packed plain-old-data struct, and the small enums
 //! carried inside them as `u8` codes.
 //!
 //! Encoding and decoding are casts of these structs (thesis 9.5); see [`PacketType`] for the table
@@ -15,11 +15,26 @@ pub const SETTINGS_CHUNK: usize = 32;
 pub const LOG_TEXT: usize = 64;
 
 macro_rules! code_enum {
-    ($(#[$meta:meta])* pub enum $name:ident { $($(#[$vmeta:meta])* $var:ident = $val:literal),* $(,)? }) => {
+    ($(#[$meta:meta])* pub enum $name:ident { $($(#[doc = $vdoc:literal])* $var:ident = $val:literal),* $(,)? }) => {
         $(#[$meta])*
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
         #[repr(u8)]
-        pub enum $name { $($(#[$vmeta])* $var = $val),* }
+        pub enum $name { $($(#[doc = $vdoc])* $var = $val),* }
+
+        impl $name {
+            /// Every variant, in code order.
+            pub const ALL: &'static [Self] = &[$(Self::$var),*];
+
+            /// The variant's name.
+            pub fn name(self) -> &'static str {
+                match self { $(Self::$var => stringify!($var)),* }
+            }
+
+            /// The variant's doc comment, lines joined.
+            pub fn doc(self) -> &'static str {
+                match self { $(Self::$var => concat!($($vdoc),*)),* }
+            }
+        }
 
         impl TryFrom<u8> for $name {
             type Error = u8;
@@ -129,6 +144,13 @@ code_enum! {
         BadParameter = 3,
         /// Settings storage failed.
         StorageFailed = 4,
+        /// The frame's type code is not in the table; the Nack's `packet_type` is that code.
+        UnknownType = 5,
+        /// The payload length is not one the type allows, or a settings update's `len` disagrees
+        /// with the bytes it carries.
+        BadLength = 6,
+        /// A settings value is outside its documented range; the Nack names the field's offset.
+        BadSettingValue = 7,
     }
 }
 
@@ -443,7 +465,14 @@ wire_struct! {
         pub packet_type: u8,
         /// A [`NackReason`] code.
         pub reason: u8,
+        /// Offset in [`Settings`] of the offending field, or [`Nack::NO_FIELD`].
+        pub field_offset: u16,
     }
+}
+
+impl Nack {
+    /// `field_offset` when the refusal names no settings field.
+    pub const NO_FIELD: u16 = 0xFFFF;
 }
 
 wire_struct! {
@@ -470,6 +499,16 @@ impl SettingsUpdate {
     /// The used bytes.
     pub fn bytes(&self) -> &[u8] {
         &self.data[..(self.len as usize).min(SETTINGS_CHUNK)]
+    }
+
+    /// Checks that `len` matches the data a frame of `payload_len` bytes actually carried; a
+    /// shorter frame would otherwise write its zero-filled tail.
+    pub fn check_carried(&self, payload_len: usize) -> Result<(), crate::SettingsError> {
+        let len = usize::from(self.len);
+        if len > SETTINGS_CHUNK || payload_len != 3 + len {
+            return Err(crate::SettingsError::LengthMismatch);
+        }
+        Ok(())
     }
 }
 
@@ -548,7 +587,7 @@ pub trait Packet: bytemuck::Pod {
 
 macro_rules! packets {
     ($( $(#[$doc:meta])* $code:literal => $name:ident($ty:ty) $(, tail $min:expr, $len:expr)? ;)*) => {
-        /// Packet type codes of protocol version 1.
+        /// Packet type codes of the current protocol version.
         ///
         #[doc = include_str!("codes.md")]
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -572,6 +611,11 @@ macro_rules! packets {
             /// Type name.
             pub fn name(self) -> &'static str {
                 match self { $(Self::$name => stringify!($name),)* }
+            }
+
+            /// Layout of the payload struct, for documentation and tools.
+            pub fn layout(self) -> &'static crate::layout::TypeInfo {
+                match self { $(Self::$name => const { &<$ty as Layout>::LAYOUT },)* }
             }
         }
 
