@@ -1,8 +1,8 @@
 //! The behaviour contract: what a behaviour sees ([`WorldSnapshot`]), what it may ask for
 //! ([`Intent`]), how it ends ([`Verdict`]), and how it is found by name ([`Registry`]).
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use protocol::RobotState;
@@ -206,6 +206,38 @@ pub struct BehaviourConfig {
     pub params: BTreeMap<String, String>,
     /// The tape layout of the world, as the world file describes it (empty on a bare floor).
     pub track: Arc<Track>,
+    /// The parameter keys looked up so far (see [`BehaviourConfig::check_params`]).
+    pub looked_up: LookedUp,
+}
+
+/// The parameter keys a behaviour looked up through a [`BehaviourConfig`].
+///
+/// Behaviours are built from a shared `&BehaviourConfig`, so the record sits behind a lock; a
+/// clone copies the keys recorded so far.
+#[derive(Debug, Default)]
+pub struct LookedUp(Mutex<BTreeSet<String>>);
+
+impl LookedUp {
+    fn insert(&self, key: &str) {
+        // A poisoned set is still a set of strings: keep recording.
+        let mut keys = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        if !keys.contains(key) {
+            keys.insert(key.to_owned());
+        }
+    }
+
+    /// Every key looked up, sorted.
+    pub fn keys(&self) -> Vec<String> {
+        let keys = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        keys.iter().cloned().collect()
+    }
+}
+
+impl Clone for LookedUp {
+    fn clone(&self) -> Self {
+        let keys = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        Self(Mutex::new(keys.clone()))
+    }
 }
 
 impl BehaviourConfig {
@@ -239,11 +271,43 @@ impl BehaviourConfig {
     /// # Errors
     /// A present value that does not parse, naming the key and the value.
     pub fn param<T: std::str::FromStr>(&self, key: &str, default: T) -> Result<T, String> {
-        match self.params.get(key) {
+        match self.param_text(key) {
             None => Ok(default),
             Some(v) => v
                 .parse()
                 .map_err(|_| format!("parameter {key}={v:?} is not a valid value")),
+        }
+    }
+
+    /// Parameter `key` as given, if it was; for values a behaviour parses itself.
+    pub fn param_text(&self, key: &str) -> Option<&str> {
+        self.looked_up.insert(key);
+        self.params.get(key).map(String::as_str)
+    }
+
+    /// Refuses parameters the behaviour `name` never looked up while it was built from this
+    /// config: a typo must not silently run with the default.
+    ///
+    /// A behaviour's constructor therefore looks up every parameter it accepts, given or not, on
+    /// its successful path (through [`param`](Self::param), [`param_in`](Self::param_in) or
+    /// [`param_text`](Self::param_text)).
+    ///
+    /// # Errors
+    /// The first unknown key, with the keys the behaviour does take.
+    pub fn check_params(&self, name: &str) -> Result<(), String> {
+        let known = self.looked_up.keys();
+        let Some(unknown) = self.params.keys().find(|k| !known.contains(k)) else {
+            return Ok(());
+        };
+        if known.is_empty() {
+            Err(format!(
+                "unknown parameter {unknown:?} for {name}; it takes no parameters"
+            ))
+        } else {
+            Err(format!(
+                "unknown parameter {unknown:?} for {name}; its parameters: {}",
+                known.join(", ")
+            ))
         }
     }
 }
@@ -344,5 +408,84 @@ impl Registry {
     /// Every name, sorted.
     pub fn names(&self) -> Vec<&'static str> {
         self.entries.keys().copied().collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use simulator::world::presets;
+
+    /// A config on the behaviour's own world, as the coordinator builds it.
+    fn config(registry: &Registry, name: &str, params: &[(&str, &str)]) -> BehaviourConfig {
+        let entry = registry.get(name).expect("registered");
+        let world = presets::preset(entry.world).expect("the behaviour's world is a preset");
+        BehaviourConfig {
+            robots: world.robots.iter().map(|r| r.id).collect(),
+            params: params
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            track: Arc::new(world.track),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn every_builtin_looks_up_all_its_parameters_and_refuses_others() {
+        let registry = Registry::builtin();
+        let expected: &[(&str, &[&str])] = &[
+            ("cooperative_push", &["box", "laps", "push", "speed"]),
+            ("line_follow", &["laps", "speed", "spacing", "spread"]),
+            ("square_walk", &["side"]),
+            ("token_ring", &["reverse", "rounds", "speed"]),
+            ("traffic_control", &["goals", "quota", "tasks"]),
+        ];
+        assert_eq!(
+            registry.names(),
+            expected.iter().map(|(n, _)| *n).collect::<Vec<_>>()
+        );
+        for (name, keys) in expected {
+            let constructor = registry.get(name).expect("registered").constructor;
+            let cfg = config(&registry, name, &[]);
+            constructor(&cfg).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(cfg.looked_up.keys(), *keys, "{name}");
+            assert_eq!(cfg.check_params(name), Ok(()));
+
+            let cfg = config(&registry, name, &[(keys[0], "x"), ("bogus", "1")]);
+            assert!(constructor(&cfg).is_err(), "{name}: {}=x accepted", keys[0]);
+            let cfg = config(&registry, name, &[("bogus", "1")]);
+            constructor(&cfg).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let err = cfg.check_params(name).unwrap_err();
+            assert_eq!(
+                err,
+                format!(
+                    "unknown parameter \"bogus\" for {name}; its parameters: {}",
+                    keys.join(", ")
+                )
+            );
+        }
+    }
+
+    #[test]
+    fn a_behaviour_without_parameters_says_so() {
+        let cfg = BehaviourConfig {
+            params: [("speed".to_string(), "1".to_string())].into(),
+            ..Default::default()
+        };
+        assert_eq!(
+            cfg.check_params("teleop").unwrap_err(),
+            "unknown parameter \"speed\" for teleop; it takes no parameters"
+        );
+    }
+
+    #[test]
+    fn a_clone_keeps_the_keys_looked_up_so_far() {
+        let cfg = BehaviourConfig::default();
+        assert_eq!(cfg.param("a", 1), Ok(1));
+        let copy = cfg.clone();
+        assert_eq!(cfg.param_text("b"), None);
+        assert_eq!(copy.looked_up.keys(), ["a"]);
+        assert_eq!(cfg.looked_up.keys(), ["a", "b"]);
     }
 }

@@ -13,8 +13,8 @@ pub mod traffic_control;
 
 pub use actor::BehaviourActor;
 pub use api::{
-    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Registry, RobotView,
-    Verdict, WorldSnapshot,
+    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, LookedUp, Registry,
+    RobotView, Verdict, WorldSnapshot,
 };
 pub use protocol::packets::MoveOutcome;
 pub use robot_actor::{MoveCommand, Pose, RobotEventKind};

@@ -119,7 +119,7 @@ impl TrafficControl {
         let graph = TrackGraph::new(&cfg.track);
         let mapf = Graph::from_petgraph(&graph.graph).map_err(|e| e.to_string())?;
         let target_tasks: u32 = cfg.param("tasks", 100)?;
-        let quota: Option<u32> = match cfg.params.get("quota") {
+        let quota: Option<u32> = match cfg.param_text("quota") {
             None => None,
             Some(q) => Some(
                 q.parse()
@@ -129,7 +129,7 @@ impl TrafficControl {
         if target_tasks == 0 {
             return Err("tasks must be at least 1".into());
         }
-        let scripted: Option<Vec<u32>> = match cfg.params.get("goals") {
+        let scripted: Option<Vec<u32>> = match cfg.param_text("goals") {
             None => None,
             Some(list) => Some(
                 list.split(',')

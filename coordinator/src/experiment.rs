@@ -8,6 +8,7 @@ use std::time::Duration;
 use actix::Actor;
 use anyhow::{anyhow, bail, Context as _, Result};
 use behaviours::{BehaviourConfig, Registry};
+use protocol::packets::Hello;
 use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
 use robot_actor::link::sim::SimDiscoverer;
@@ -83,7 +84,7 @@ pub fn load_world(name: &str) -> Result<World> {
         let Some((cols, rows, robots)) = parsed else {
             bail!("world {name:?}: expected grid:COLSxROWS:ROBOTS, e.g. grid:12x8:50");
         };
-        return Ok(presets::grid(cols, rows, robots));
+        return presets::grid_exact(cols, rows, robots).map_err(|e| anyhow!("world {name:?}: {e}"));
     }
     if name.ends_with(".toml") || std::path::Path::new(name).exists() {
         return file::load(name).map_err(|e| anyhow!("{e}"));
@@ -115,6 +116,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         .clone()
         .unwrap_or_else(|| entry.world.to_string());
     let mut world = load_world(&world_name)?;
+    if world.robots.is_empty() {
+        bail!("world {world_name:?} places no robots: give it at least one [[robots]] entry");
+    }
     if let Some(n) = plan.robots {
         if n == 0 || n > world.robots.len() {
             bail!(
@@ -132,8 +136,12 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         seed: plan.seed,
         params: plan.params.clone(),
         track: Arc::clone(&track),
+        ..BehaviourConfig::default()
     };
     (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
+    probe
+        .check_params(&plan.behaviour)
+        .map_err(|e| anyhow!(e))?;
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
     let (discovered, origins, sim) = match &plan.transport {
@@ -189,13 +197,16 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     };
     let discovered = hooks.tap(discovered, &world);
     let observer = hooks.observer(&world, sim.clone());
-    let robots = connect_all(&discovered, origins.as_deref(), &world, &observer).await?;
+    // A robot that cannot answer within the whole time limit will not be waited for longer.
+    let deadline = HELLO_DEADLINE.min(plan.duration);
+    let robots = connect_all(&discovered, origins.as_deref(), &world, &observer, deadline).await?;
     let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
     let config = BehaviourConfig {
         robots: ids,
         seed: plan.seed,
         params: plan.params.clone(),
         track: Arc::clone(&track),
+        ..BehaviourConfig::default()
     };
     let (done_tx, done_rx) = oneshot::channel();
     let supervisor = Supervisor::new(
@@ -349,6 +360,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     hooks.finish(report, &observer).await
 }
 
+/// The longest wait for a robot's hello (shortened to the experiment's time limit).
+pub const HELLO_DEADLINE: Duration = Duration::from_secs(10);
+
 /// Where the line sensor sits ahead of the body centre (the simulated robot's).
 const SENSOR_AHEAD_M: f64 = 0.016;
 
@@ -392,13 +406,17 @@ fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport
         .collect()
 }
 
+/// Starts a robot actor per discovered robot and waits for each one's hello, at most `deadline`
+/// each. Refused robots, silent ones and two robots claiming one id end the experiment before it
+/// starts, with every robot started so far closed.
 async fn connect_all(
     found: &[Discovered],
     origins: Option<&[Pose]>,
     world: &World,
     observer: &actix::Addr<Observer>,
+    deadline: Duration,
 ) -> Result<Vec<(u16, Robot)>> {
-    let mut robots = Vec::new();
+    let mut robots: Vec<(u16, Robot, String)> = Vec::new();
     for (i, d) in found.iter().enumerate() {
         let config = RobotConfig {
             origin: origins.and_then(|o| o.get(i).copied()).unwrap_or_default(),
@@ -408,9 +426,26 @@ async fn connect_all(
         // Before any packet: replay checks the observer's view after each robot's k-th update.
         robot.subscribe(observer.clone().recipient());
         robot.subscribe_events(observer.clone().recipient());
-        let hello = tokio::time::timeout(Duration::from_secs(10), robot.connected())
-            .await
-            .with_context(|| format!("{} did not say hello within 10 s", d.name))??;
+        let peer = d.connector.peer();
+        let greeted = greet(&robot, d, deadline).await.and_then(|hello| {
+            match robots.iter().find(|(id, _, _)| *id == hello.robot_id) {
+                Some((id, _, first)) => Err(anyhow!(
+                    "robots at {first} and {peer} both say they are robot {id}: every robot \
+                     needs its own id"
+                )),
+                None => Ok(hello),
+            }
+        });
+        let hello = match greeted {
+            Ok(hello) => hello,
+            Err(e) => {
+                robot.close();
+                for (_, r, _) in &robots {
+                    r.close();
+                }
+                return Err(e);
+            }
+        };
         if origins.is_none() {
             // Robots reached by address start where the world file places their id.
             if let Some(start) = world.robots.iter().find(|r| r.id == hello.robot_id) {
@@ -421,10 +456,24 @@ async fn connect_all(
                 }));
             }
         }
-        tracing::info!(robot = { hello.robot_id }, peer = %d.connector.peer(), "connected");
-        robots.push((hello.robot_id, robot));
+        tracing::info!(robot = { hello.robot_id }, %peer, "connected");
+        robots.push((hello.robot_id, robot, peer));
     }
-    Ok(robots)
+    Ok(robots.into_iter().map(|(id, r, _)| (id, r)).collect())
+}
+
+/// Waits for one robot's hello; a timeout says why the link never came up, if it did not.
+async fn greet(robot: &Robot, d: &Discovered, deadline: Duration) -> Result<Hello> {
+    match tokio::time::timeout(deadline, robot.connected()).await {
+        Ok(hello) => hello.with_context(|| d.name.clone()),
+        Err(_) => {
+            let snapshot = robot.snapshot().await?;
+            match snapshot.link_error {
+                Some(why) => bail!("{}: {why}; no link within {deadline:?}", d.name),
+                None => bail!("{} did not say hello within {deadline:?}", d.name),
+            }
+        }
+    }
 }
 
 /// A progress bar over the time limit, on a terminal only; it moves with the experiment's clock.

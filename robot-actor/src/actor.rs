@@ -39,27 +39,14 @@ pub enum RobotError {
         /// How long the command had been pending.
         after: Duration,
     },
-    /// The robot's settings layout is not the one this host was built with: no settings write.
-    #[error(
-        "robot {robot}: unknown settings layout {robot_hash:016x} (host knows {host_hash:016x})"
-    )]
-    UnknownSettingsLayout {
+    /// The robot's hello shows a protocol or a layout other than this host's: the link was closed
+    /// and the actor does not reconnect (moves or settings would be misread on either side).
+    #[error("robot {robot} refused: {}", list(differences))]
+    Incompatible {
         /// Robot id.
         robot: u16,
-        /// Hash the robot reported.
-        robot_hash: u64,
-        /// Hash this host knows.
-        host_hash: u64,
-    },
-    /// The robot speaks another protocol version.
-    #[error("robot {robot}: protocol version {robot_version}, host speaks {host_version}")]
-    ProtocolMismatch {
-        /// Robot id.
-        robot: u16,
-        /// Robot's version.
-        robot_version: u16,
-        /// Host's version.
-        host_version: u16,
+        /// What differs, in the order version, state layout, settings layout.
+        differences: Vec<Incompatibility>,
     },
     /// The robot refused the command.
     #[error("robot {robot}: refused {packet}: {reason:?}")]
@@ -104,6 +91,64 @@ pub enum RobotError {
         /// Robot id.
         robot: u16,
     },
+}
+
+/// One way a robot's hello differs from what this host speaks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Incompatibility {
+    /// Another [`protocol::PROTOCOL_VERSION`].
+    #[error("protocol version {robot}, host speaks {host}")]
+    ProtocolVersion {
+        /// The robot's.
+        robot: u16,
+        /// The host's.
+        host: u16,
+    },
+    /// Another [`RobotState`] layout hash: reflected states would be misread.
+    #[error("state layout {robot:#018x}, host knows {host:#018x}")]
+    StateLayout {
+        /// The robot's.
+        robot: u64,
+        /// The host's.
+        host: u64,
+    },
+    /// Another [`Settings`] layout hash: settings would be written at the wrong offsets.
+    #[error("settings layout {robot:#018x}, host knows {host:#018x}")]
+    SettingsLayout {
+        /// The robot's.
+        robot: u64,
+        /// The host's.
+        host: u64,
+    },
+}
+
+/// How `hello` differs from this host's protocol version and layouts (empty when it does not).
+pub fn incompatibilities(hello: &Hello) -> Vec<Incompatibility> {
+    let mut out = Vec::new();
+    if hello.protocol_version != protocol::PROTOCOL_VERSION {
+        out.push(Incompatibility::ProtocolVersion {
+            robot: hello.protocol_version,
+            host: protocol::PROTOCOL_VERSION,
+        });
+    }
+    if hello.state_hash != RobotState::LAYOUT.hash {
+        out.push(Incompatibility::StateLayout {
+            robot: hello.state_hash,
+            host: RobotState::LAYOUT.hash,
+        });
+    }
+    if hello.settings_hash != protocol::SETTINGS_LAYOUT_HASH {
+        out.push(Incompatibility::SettingsLayout {
+            robot: hello.settings_hash,
+            host: protocol::SETTINGS_LAYOUT_HASH,
+        });
+    }
+    out
+}
+
+fn list(differences: &[Incompatibility]) -> String {
+    let parts: Vec<String> = differences.iter().map(ToString::to_string).collect();
+    parts.join("; ")
 }
 
 /// The state reflector's mode and period (thesis 9.7).
@@ -286,6 +331,10 @@ pub struct RobotSnapshot {
     pub link: LinkStats,
     /// Moves waiting for their finish event.
     pub pending_moves: usize,
+    /// Why the latest attempt to open a link failed, until one opens.
+    pub link_error: Option<String>,
+    /// Why the robot was refused after its hello, if it was.
+    pub refused: Option<RobotError>,
 }
 
 /// Registers a state subscriber.
@@ -390,6 +439,10 @@ pub struct RobotActor {
     hello: Option<Hello>,
     /// Whether the robot said hello on the current link.
     greeted: bool,
+    /// Set when the hello showed an incompatible robot: the actor then stays disconnected.
+    refused: Option<RobotError>,
+    /// Why the latest connect attempt failed, until a link opens.
+    link_error: Option<String>,
     state: RobotState,
     full_state_at: Option<Instant>,
     reduced_state_at: Option<Instant>,
@@ -431,6 +484,8 @@ impl RobotActor {
             connected_at: None,
             hello: None,
             greeted: false,
+            refused: None,
+            link_error: None,
             state: RobotState::default(),
             full_state_at: None,
             reduced_state_at: None,
@@ -462,9 +517,9 @@ impl RobotActor {
     }
 
     fn not_connected(&self) -> RobotError {
-        RobotError::NotConnected {
+        self.refused.clone().unwrap_or(RobotError::NotConnected {
             robot: self.robot_id(),
-        }
+        })
     }
 
     fn send<P: Packet>(&mut self, p: &P) -> Result<(), RobotError> {
@@ -482,16 +537,13 @@ impl RobotActor {
         }
     }
 
+    /// Settings operations need a hello (whose layout was checked on arrival) and no refusal.
     fn layout_ok(&self) -> Result<(), RobotError> {
-        let hello = self.hello.ok_or_else(|| self.not_connected())?;
-        if hello.settings_hash != protocol::SETTINGS_LAYOUT_HASH {
-            return Err(RobotError::UnknownSettingsLayout {
-                robot: hello.robot_id,
-                robot_hash: hello.settings_hash,
-                host_hash: protocol::SETTINGS_LAYOUT_HASH,
-            });
+        match (&self.refused, self.hello) {
+            (Some(refusal), _) => Err(refusal.clone()),
+            (None, None) => Err(self.not_connected()),
+            (None, Some(_)) => Ok(()),
         }
-        Ok(())
     }
 
     fn emit(&self, kind: RobotEventKind) {
@@ -518,11 +570,13 @@ impl RobotActor {
                 act.connected_at = Some(Instant::now());
                 act.last_seen = Some(Instant::now());
                 act.backoff = act.config.min_backoff;
+                act.link_error = None;
                 ctx.add_stream(UnboundedReceiverStream::new(link.rx).map(move |e| (generation, e)));
                 let _ = act.send(&packets::HelloRequest {});
             }
             Err(e) => {
                 warn!(error = %e, "connect failed");
+                act.link_error = Some(describe_connect_error(&e));
                 act.schedule_reconnect(ctx);
             }
         }));
@@ -576,12 +630,20 @@ impl RobotActor {
     }
 
     fn on_hello(&mut self, hello: Hello) {
-        if self.greeted {
+        if self.greeted || self.refused.is_some() {
             // The robot greets on connect and on request: one link, one greeting.
             return;
         }
         let reconnect = self.hello.is_some();
         self.hello = Some(hello);
+        let differences = incompatibilities(&hello);
+        if !differences.is_empty() {
+            self.refuse(RobotError::Incompatible {
+                robot: hello.robot_id,
+                differences,
+            });
+            return;
+        }
         self.greeted = true;
         let r = self.config.reflector;
         let _ = self.send(&packets::ReflectorConfig {
@@ -589,30 +651,40 @@ impl RobotActor {
             period_ms: r.period_ms,
         });
         info!(robot = { hello.robot_id }, "hello");
-        if hello.protocol_version != protocol::PROTOCOL_VERSION {
-            warn!(robot = { hello.robot_id }, "protocol version mismatch");
-        }
         if reconnect {
             self.stats.reconnects += 1;
         }
-        if self.layout_ok().is_ok() {
-            // Host-made changes survive a robot reboot or a reconnect.
-            let writes: Vec<(usize, Vec<u8>)> = self
-                .host_writes
-                .iter()
-                .map(|(o, b)| (*o, b.clone()))
-                .collect();
-            for (offset, bytes) in writes {
-                if let Some(u) = packets::SettingsUpdate::new(offset as u16, &bytes) {
-                    let _ = self.send(&u);
-                }
+        // Host-made changes survive a robot reboot or a reconnect.
+        let writes: Vec<(usize, Vec<u8>)> = self
+            .host_writes
+            .iter()
+            .map(|(o, b)| (*o, b.clone()))
+            .collect();
+        for (offset, bytes) in writes {
+            if let Some(u) = packets::SettingsUpdate::new(offset as u16, &bytes) {
+                let _ = self.send(&u);
             }
-            self.request_all_settings();
         }
+        self.request_all_settings();
         for w in self.hello_waiters.drain(..) {
             let _ = w.send(Ok(hello));
         }
         self.emit(RobotEventKind::Connected(hello));
+    }
+
+    /// Closes the link for good: every waiter and every later command gets `refusal`.
+    fn refuse(&mut self, refusal: RobotError) {
+        warn!(error = %refusal, "robot refused");
+        // Dropping the only sender ends the link's I/O task, which closes the connection; its
+        // last events belong to an old generation and are ignored.
+        self.generation += 1;
+        self.tx = None;
+        self.counters = None;
+        self.greeted = false;
+        for w in self.hello_waiters.drain(..) {
+            let _ = w.send(Err(refusal.clone()));
+        }
+        self.refused = Some(refusal);
     }
 
     fn request_all_settings(&mut self) {
@@ -841,6 +913,8 @@ impl RobotActor {
             odometry_totals: self.odometry.totals(),
             link,
             pending_moves: self.moves.len(),
+            link_error: self.link_error.clone(),
+            refused: self.refused.clone(),
         }
     }
 }
@@ -917,6 +991,9 @@ impl Handler<WaitConnected> for RobotActor {
     fn handle(&mut self, _: WaitConnected, _: &mut Self::Context) -> Self::Result {
         if let (Some(h), true) = (self.hello, self.tx.is_some() && self.greeted) {
             return Box::pin(async move { Ok(h) });
+        }
+        if let Some(refusal) = self.refused.clone() {
+            return Box::pin(async move { Err(refusal) });
         }
         let (tx, rx) = oneshot::channel();
         self.hello_waiters.push(tx);
@@ -1109,6 +1186,19 @@ impl Handler<Close> for RobotActor {
     type Result = ();
     fn handle(&mut self, _: Close, ctx: &mut Self::Context) {
         ctx.stop();
+    }
+}
+
+/// A failed connect attempt in a few words; a refusal says so plainly, as it is the usual mistake
+/// (a wrong port, or a robot server not started yet).
+fn describe_connect_error(e: &crate::link::LinkError) -> String {
+    match e {
+        crate::link::LinkError::Connect { peer, source }
+            if source.kind() == std::io::ErrorKind::ConnectionRefused =>
+        {
+            format!("connection refused by {peer} (nothing listens there)")
+        }
+        other => other.to_string(),
     }
 }
 

@@ -9,7 +9,8 @@ pub mod robot;
 pub mod settings;
 
 pub use actor::{
-    MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind, StateUpdated,
+    Incompatibility, MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind,
+    StateUpdated,
 };
 pub use odometry::{Odometry, Pose};
 pub use robot::{CallError, Robot};

@@ -2,6 +2,7 @@
 //! reflection, settings, reflector rates, moves and odometry, layout refusal, reconnect.
 
 use std::future::Future;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -18,7 +19,7 @@ use robot_actor::{setting, Robot, RobotConfig, RobotError, StateUpdated};
 use simulator::runtime::{self, Pace, SimHandle};
 use simulator::world::{file, presets};
 use simulator::{SimConfig, Simulation};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, Notify};
 
 /// Runs `f` in an actix system on a current-thread tokio runtime whose clock is paused: time
 /// advances only when every task waits, so simulated and host time are one.
@@ -255,9 +256,25 @@ fn reflector_rates_in_simulated_time() {
     });
 }
 
-/// A scripted robot whose hello reports a settings layout this host does not know.
+/// A scripted robot whose hello is this build's, altered by `alter`.
 struct Stranger {
+    alter: fn(&mut packets::Hello),
+    /// The type of every packet the host sent.
     received: Arc<Mutex<Vec<u8>>>,
+    connects: Arc<AtomicUsize>,
+    /// Signalled when the host closes a link.
+    closed: Arc<Notify>,
+}
+
+impl Stranger {
+    fn new(alter: fn(&mut packets::Hello)) -> Self {
+        Self {
+            alter,
+            received: Arc::default(),
+            connects: Arc::default(),
+            closed: Arc::default(),
+        }
+    }
 }
 
 impl Connector for Stranger {
@@ -265,7 +282,10 @@ impl Connector for Stranger {
         "fake://stranger".into()
     }
     fn connect(&self) -> BoxFuture<'static, Result<Link, LinkError>> {
+        self.connects.fetch_add(1, Ordering::SeqCst);
         let received = Arc::clone(&self.received);
+        let closed = Arc::clone(&self.closed);
+        let alter = self.alter;
         async move {
             let (tx, mut from_host) = mpsc::channel::<Vec<u8>>(64);
             let (events, rx) = mpsc::unbounded_channel();
@@ -274,11 +294,12 @@ impl Connector for Stranger {
                     received.lock().unwrap().push(p[1]);
                     if p[1] == PacketType::HelloRequest as u8 {
                         let mut hello = packets::Hello::new(&Settings::default(), [9, 9, 9]);
-                        hello.settings_hash ^= 0xdead_beef;
+                        alter(&mut hello);
                         let (buf, n) = protocol::frame::encode_to_array(&hello);
                         let _ = events.send(LinkEvent::Packet(buf[..n].to_vec()));
                     }
                 }
+                closed.notify_one();
             });
             Ok(Link {
                 peer: "fake://stranger".into(),
@@ -292,33 +313,112 @@ impl Connector for Stranger {
 }
 
 #[test]
-fn an_unknown_settings_layout_is_refused_without_writing() {
-    paused(|| async {
-        let received = Arc::new(Mutex::new(Vec::new()));
-        let robot = Robot::start(
-            Arc::new(Stranger {
-                received: Arc::clone(&received),
-            }),
-            RobotConfig::default(),
-        );
-        robot.connected().await.unwrap();
-        let err = robot.set(setting!(line_pid.kp), 1.0).await.unwrap_err();
-        match err {
-            robot_actor::CallError::Robot(RobotError::UnknownSettingsLayout {
-                host_hash, ..
-            }) => {
-                assert_eq!(host_hash, protocol::SETTINGS_LAYOUT_HASH)
+fn a_robot_of_another_protocol_or_layout_is_refused_and_its_link_closed() {
+    use robot_actor::Incompatibility as I;
+    let state = protocol::RobotState::LAYOUT.hash;
+    let settings = protocol::SETTINGS_LAYOUT_HASH;
+    let version = protocol::PROTOCOL_VERSION;
+    let cases: [(fn(&mut packets::Hello), Vec<I>); 4] = [
+        (
+            |h| h.protocol_version += 1,
+            vec![I::ProtocolVersion {
+                robot: version + 1,
+                host: version,
+            }],
+        ),
+        (
+            |h| h.state_hash ^= 1,
+            vec![I::StateLayout {
+                robot: state ^ 1,
+                host: state,
+            }],
+        ),
+        (
+            |h| h.settings_hash ^= 0xdead_beef,
+            vec![I::SettingsLayout {
+                robot: settings ^ 0xdead_beef,
+                host: settings,
+            }],
+        ),
+        (
+            |h| {
+                h.protocol_version = 0;
+                h.state_hash = 0;
+                h.settings_hash = 0;
+            },
+            vec![
+                I::ProtocolVersion {
+                    robot: 0,
+                    host: version,
+                },
+                I::StateLayout {
+                    robot: 0,
+                    host: state,
+                },
+                I::SettingsLayout {
+                    robot: 0,
+                    host: settings,
+                },
+            ],
+        ),
+    ];
+    for (alter, expected) in cases {
+        paused(|| async move {
+            let stranger = Stranger::new(alter);
+            let (received, connects, closed) = (
+                Arc::clone(&stranger.received),
+                Arc::clone(&stranger.connects),
+                Arc::clone(&stranger.closed),
+            );
+            let robot = Robot::start(Arc::new(stranger), RobotConfig::default());
+            let refusal = RobotError::Incompatible {
+                robot: 1,
+                differences: expected.clone(),
+            };
+            match robot.connected().await {
+                Err(robot_actor::CallError::Robot(e)) => assert_eq!(e, refusal),
+                other => panic!("{expected:?}: {other:?}"),
             }
-            other => panic!("{other:?}"),
-        }
+            tokio::time::timeout(Duration::from_secs(5), closed.notified())
+                .await
+                .expect("the refused robot's link is closed");
+            let text = refusal.to_string();
+            assert!(text.starts_with("robot 1 refused: "), "{text}");
+            for d in &expected {
+                assert!(text.contains(&d.to_string()), "{text}");
+            }
+            match robot.straight(0.1, 0.1).await {
+                Err(robot_actor::CallError::Robot(e)) => assert_eq!(e, refusal),
+                other => panic!("a move to a refused robot: {other:?}"),
+            }
+            let err = robot.set(setting!(line_pid.kp), 1.0).await.unwrap_err();
+            assert!(err.to_string().contains("refused"), "{err}");
+            // Long past every reconnect backoff: a refused robot is not dialled again.
+            tokio::time::sleep(Duration::from_secs(5)).await;
+            assert_eq!(connects.load(Ordering::SeqCst), 1);
+            assert_eq!(snapshot(&robot).await.refused, Some(refusal));
+            let types = received.lock().unwrap().clone();
+            assert_eq!(
+                types,
+                [PacketType::HelloRequest as u8],
+                "nothing but the hello request reaches a refused robot"
+            );
+        });
+    }
+}
+
+#[test]
+fn a_compatible_hello_is_accepted() {
+    paused(|| async {
+        let stranger = Stranger::new(|_| {});
+        let received = Arc::clone(&stranger.received);
+        let robot = Robot::start(Arc::new(stranger), RobotConfig::default());
+        let hello = robot.connected().await.expect("compatible");
+        assert!(robot_actor::actor::incompatibilities(&hello).is_empty());
         let types = received.lock().unwrap().clone();
         assert!(
-            !types.contains(&(PacketType::SettingsUpdate as u8)),
+            types.contains(&(PacketType::ReflectorConfig as u8)),
             "{types:?}"
-        );
-        assert!(
-            !types.contains(&(PacketType::SettingsRead as u8)),
-            "no read-back of an unknown layout"
         );
     });
 }

@@ -41,9 +41,9 @@ struct Args {
     /// Pace the simulation to the wall clock instead of running it as fast as possible.
     #[arg(long)]
     realtime: bool,
-    /// Time limit in seconds (simulated time when simulating).
-    #[arg(long, default_value_t = 600.0)]
-    duration: f64,
+    /// Time limit in seconds (simulated time when simulating), more than 0 and at most 1000000.
+    #[arg(long, default_value = "600", value_parser = parse_duration, allow_negative_numbers = true)]
+    duration: Duration,
     /// Also write the report as JSON to this file.
     #[arg(long)]
     json_report: Option<std::path::PathBuf>,
@@ -109,11 +109,68 @@ fn parse_param(s: &str) -> Result<(String, String), String> {
         .ok_or_else(|| format!("expected key=value, got {s:?}"))
 }
 
+/// The longest `--duration`, in seconds: over eleven days, longer than any experiment, and far
+/// inside what a `Duration` or a timer can hold.
+const MAX_DURATION_S: f64 = 1e6;
+
+fn parse_duration(s: &str) -> Result<Duration, String> {
+    let secs: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number of seconds"))?;
+    if !(secs.is_finite() && secs > 0.0 && secs <= MAX_DURATION_S) {
+        return Err(format!(
+            "{s:?}: expected more than 0 and at most {MAX_DURATION_S} seconds"
+        ));
+    }
+    Ok(Duration::from_secs_f64(secs))
+}
+
+/// Output files claimed before the run, so an unwritable path is found before any robot moves.
+struct Outputs {
+    /// Files this run created; removed again if the run ends in an error.
+    created: Vec<PathBuf>,
+}
+
+impl Outputs {
+    /// Opens every given path for writing, creating it if needed (an existing file keeps its
+    /// content until the run writes it).
+    fn claim(paths: &[(&str, Option<&std::path::Path>)]) -> Result<Self> {
+        let mut outputs = Self {
+            created: Vec::new(),
+        };
+        for (flag, path) in paths {
+            let Some(path) = path else { continue };
+            let existed = path.exists();
+            let opened = std::fs::OpenOptions::new()
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(path);
+            if let Err(e) = opened {
+                outputs.discard();
+                bail!("{flag} {}: cannot write there: {e}", path.display());
+            }
+            if !existed {
+                outputs.created.push(path.to_path_buf());
+            }
+        }
+        Ok(outputs)
+    }
+
+    /// Removes the files this run created and left empty: an error leaves no empty output
+    /// behind, but keeps whatever was written (a recording up to the error).
+    fn discard(&self) {
+        for path in &self.created {
+            if std::fs::metadata(path).is_ok_and(|m| m.len() == 0) {
+                let _ = std::fs::remove_file(path);
+            }
+        }
+    }
+}
+
 fn plan(args: &Args) -> Result<Plan> {
     let behaviour = args.behaviour.clone().context("--behaviour is required")?;
-    if !args.duration.is_finite() || args.duration <= 0.0 {
-        bail!("--duration must be a positive number of seconds");
-    }
     let (transport, robots) = match args.transport {
         TransportKind::Sim => {
             let n = match &args.robots {
@@ -141,7 +198,7 @@ fn plan(args: &Args) -> Result<Plan> {
         seed: args.seed,
         // The panel is for watching: simulated time then runs at the wall clock's pace.
         realtime: args.realtime || (args.panel.is_some() && !args.fast),
-        duration: Duration::from_secs_f64(args.duration),
+        duration: args.duration,
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
     })
@@ -189,6 +246,19 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, registry: &Registry) -> Result<bool> {
     let plan = plan(args)?;
+    let outputs = Outputs::claim(&[
+        ("--json-report", args.json_report.as_deref()),
+        ("--plot", args.plot.as_deref()),
+        ("--record", args.record.as_deref()),
+    ])?;
+    let result = run_plan(args, plan, registry);
+    if result.is_err() {
+        outputs.discard();
+    }
+    result
+}
+
+fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
     let simulated = plan.transport == Transport::Sim;
     // Loaded again for the plot only, after the run has checked the plan.
     let plot = args.plot.as_ref().map(|path| (path.clone(), plan.clone()));
@@ -250,6 +320,20 @@ fn finish(
 }
 
 fn replay(
+    file: &std::path::Path,
+    panel: Option<SocketAddr>,
+    plot: Option<&std::path::Path>,
+    registry: &Registry,
+) -> Result<bool> {
+    let outputs = Outputs::claim(&[("--plot", plot)])?;
+    let result = replay_file(file, panel, plot, registry);
+    if result.is_err() {
+        outputs.discard();
+    }
+    result
+}
+
+fn replay_file(
     file: &std::path::Path,
     panel: Option<SocketAddr>,
     plot: Option<&std::path::Path>,

@@ -432,12 +432,35 @@ fn line_of(text: &str, offset: usize) -> usize {
         + 1
 }
 
+/// The parser's description of a syntax error, or one made from where it stopped: some parse
+/// errors (a file cut short, a stray character) come without a description.
+fn syntax_message(e: &toml::de::Error, text: &str) -> String {
+    let message = e.message().trim();
+    if !message.is_empty() {
+        return message.to_owned();
+    }
+    let at = e.span().map_or(text.len(), |s| s.start.min(text.len()));
+    // The rest of the line from where the parser stopped, cut at a character boundary.
+    let rest: String = text.as_bytes()[at..]
+        .utf8_chunks()
+        .flat_map(|c| c.valid().chars())
+        .take_while(|&c| c != '\n')
+        .take(40)
+        .collect();
+    if rest.trim().is_empty() {
+        "invalid TOML: the line ends before its value or closing bracket (is the file cut short?)"
+            .to_owned()
+    } else {
+        format!("invalid TOML at {:?}", rest.trim())
+    }
+}
+
 /// Parses and checks a world file's text; `origin` (usually the file name) heads every message.
 pub fn parse(text: &str, origin: &str) -> Result<World, WorldError> {
     let file: WorldFile = toml::from_str(text).map_err(|e| WorldError::Syntax {
         origin: origin.to_owned(),
         line: e.span().map_or(1, |s| line_of(text, s.start)),
-        message: e.message().trim().to_owned(),
+        message: syntax_message(&e, text),
     })?;
     file.to_world(origin)
         .map_err(|problem| WorldError::Invalid {
@@ -675,6 +698,34 @@ y = 0.5
             "{err}"
         );
         assert_eq!(err.line(), None);
+    }
+
+    #[test]
+    fn a_truncated_file_always_says_what_is_wrong() {
+        // Every cut of a good file, including cuts inside a value, a key or a table header.
+        let mut refused = 0;
+        for end in 0..GOOD.len() {
+            let text = &GOOD[..end];
+            let Err(err) = parse(text, "cut.toml") else {
+                continue;
+            };
+            refused += 1;
+            let shown = err.to_string();
+            let line = err.line().expect("a content error has a line");
+            let head = format!("cut.toml:{line}: ");
+            assert!(shown.starts_with(&head), "cut at {end}: {shown}");
+            assert!(
+                !shown[head.len()..].trim().is_empty(),
+                "cut at {end}: empty message {shown:?}"
+            );
+        }
+        assert!(refused > GOOD.len() / 2, "{refused} cuts refused");
+        let err = parse("name = \"t\"\n[arena]\nwidth_m = ", "cut.toml").unwrap_err();
+        assert!(
+            err.to_string().starts_with("cut.toml:3: ")
+                && err.to_string().len() > "cut.toml:3: ".len(),
+            "{err}"
+        );
     }
 
     #[test]

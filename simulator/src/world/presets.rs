@@ -51,6 +51,37 @@ pub fn grid_edge_count(cols: usize, rows: usize) -> usize {
     cols.saturating_sub(1) * rows + cols * rows.saturating_sub(1)
 }
 
+/// [`grid`] exactly as asked, for a request from a user: refused instead of clamped or grown.
+///
+/// # Errors
+/// A side outside 2..=[`GRID_MAX_SIDE`], no robots, more robots than robot ids, or more robots
+/// than the lattice has edges (one robot per edge at most), saying which.
+pub fn grid_exact(cols: usize, rows: usize, robots: usize) -> Result<World, String> {
+    for (side, n) in [("columns", cols), ("rows", rows)] {
+        if !(2..=GRID_MAX_SIDE).contains(&n) {
+            return Err(format!("{n} {side}: expected 2 to {GRID_MAX_SIDE}"));
+        }
+    }
+    let places = grid_edge_count(cols, rows);
+    if robots == 0 {
+        return Err("no robots: expected at least 1".into());
+    }
+    if robots > usize::from(u16::MAX) {
+        return Err(format!(
+            "{robots} robots: robot ids go up to {} only",
+            u16::MAX
+        ));
+    }
+    if robots > places {
+        return Err(format!(
+            "{robots} robots do not fit on a {cols}x{rows} lattice ({} nodes, room for {places} \
+             robots, one per edge)",
+            cols * rows
+        ));
+    }
+    Ok(grid(cols, rows, robots))
+}
+
 /// A warehouse lattice of `cols` × `rows` nodes [`GRID_SPACING_M`] apart, joined by straight
 /// edges along rows and columns, with `robots` robots (ids 1, 2, …) standing at edge middles
 /// heading from `from` to `to`, spread evenly over the edges, at most one per edge.
@@ -361,6 +392,22 @@ mod tests {
             (tested as f64) < 0.6 * queries as f64,
             "{tested} tests in {queries} queries"
         );
+    }
+
+    #[test]
+    fn grid_exact_refuses_what_grid_would_clamp_or_grow() {
+        let w = grid_exact(2, 2, 4).expect("4 robots on 4 edges");
+        assert_eq!((w.robots.len(), w.track.edges().len()), (4, 4));
+        let e = grid_exact(2, 2, 50).unwrap_err();
+        assert!(e.contains("50 robots do not fit on a 2x2 lattice"), "{e}");
+        assert!(e.contains("4 nodes, room for 4 robots"), "{e}");
+        assert!(grid_exact(2, 2, 0).unwrap_err().contains("no robots"));
+        assert!(grid_exact(1, 5, 1).unwrap_err().contains("1 columns"));
+        assert!(grid_exact(5, GRID_MAX_SIDE + 1, 1)
+            .unwrap_err()
+            .contains("rows"));
+        let e = grid_exact(GRID_MAX_SIDE, GRID_MAX_SIDE, 70_000).unwrap_err();
+        assert!(e.contains("robot ids"), "{e}");
     }
 
     #[test]
