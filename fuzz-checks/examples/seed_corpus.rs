@@ -100,6 +100,7 @@ fn frames() -> Vec<(String, Vec<u8>)> {
         Nack {
             packet_type: 0x40,
             reason: NackReason::QueueFull as u8,
+            field_offset: Nack::NO_FIELD,
         }
         .into(),
         MoveFinished {

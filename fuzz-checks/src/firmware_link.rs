@@ -87,7 +87,9 @@ pub fn check(input: &[u8]) {
         "no pong to a ping; the robot answered {answers:?}"
     );
 
-    // VALIDATE
+    if let Err(e) = r.fw.settings().validate() {
+        panic!("the robot's settings are invalid: {e}");
+    }
 }
 
 /// Takes every waiting packet as a host would, checking each is a well-formed frame.
