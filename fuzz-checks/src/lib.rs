@@ -11,8 +11,11 @@ pub mod recording;
 pub mod slip;
 pub mod world_file;
 
+/// A target's checks: panics when a property fails.
+pub type Check = fn(&[u8]);
+
 /// The fuzz targets, by the name of their corpus folder.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+pub const TARGETS: &[(&str, Check)] = &[
     ("frame", frame::check),
     ("slip", slip::check),
     ("firmware_link", firmware_link::check),
