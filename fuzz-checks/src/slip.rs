@@ -99,16 +99,16 @@ fn events<const N: usize>(dec: &mut SlipDecoder<N>, bytes: &[u8]) -> Vec<Event> 
     out
 }
 
-/// RFC 1055 decoding written from the rules, not from the decoder: each `END`-terminated piece is
-/// unescaped byte by byte; the first bad escape or the first byte beyond `cap` drops the piece. A
-/// piece that is empty once unescaped (line noise before a frame, a lone `ESC`) is not reported.
+/// RFC 1055 decoding written from the rules, not from the decoder: each piece between `END`s is
+/// unescaped byte by byte; the first bad escape or the first byte beyond `cap` drops the piece,
+/// also in the unterminated last piece. A piece that is empty once unescaped (line noise before a
+/// frame, a lone `ESC`) is not reported.
 fn model(stream: &[u8], cap: usize) -> Vec<Event> {
     let mut out = Vec::new();
     let mut pieces = stream.split(|&b| b == END).peekable();
     while let Some(piece) = pieces.next() {
-        if pieces.peek().is_none() {
-            break; // not terminated yet
-        }
+        // The decoder drops a frame at the bad byte, before its END; it delivers one only at END.
+        let terminated = pieces.peek().is_some();
         let mut frame = Vec::new();
         let mut escaped = false;
         let mut dropped = None;
@@ -137,7 +137,7 @@ fn model(stream: &[u8], cap: usize) -> Vec<Event> {
         }
         match dropped {
             Some(e) => out.push(Event::Dropped(e)),
-            None if frame.is_empty() => {}
+            None if frame.is_empty() || !terminated => {}
             None if escaped => out.push(Event::Dropped(Error::SlipBadEscape)),
             None => out.push(Event::Frame(frame)),
         }
