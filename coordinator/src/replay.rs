@@ -52,7 +52,11 @@ pub fn load(path: &Path) -> Result<Recording> {
         .with_context(|| format!("{} is not a readable PocketFleet recording", path.display()))
 }
 
-fn read(buf: &[u8]) -> Result<Recording> {
+/// Reads a recording from its bytes, as [`load`] does from a file (fuzzing feeds it directly).
+///
+/// # Errors
+/// As [`load`].
+pub fn read(buf: &[u8]) -> Result<Recording> {
     let lenient = || mcap::read::Options::IgnoreEndMagic.into();
     let mut info = None;
     for record in mcap::read::LinearReader::new_with_options(buf, lenient())? {
