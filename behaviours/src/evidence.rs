@@ -195,8 +195,10 @@ mod tests {
     use super::*;
 
     fn view(id: u16, x: f64, theta: f64, uptime_ms: u32, ticks: i32, target: f32) -> RobotView {
-        let mut state = protocol::RobotState::default();
-        state.uptime_ms = uptime_ms;
+        let mut state = protocol::RobotState {
+            uptime_ms,
+            ..Default::default()
+        };
         state.encoders.left_ticks = ticks;
         state.encoders.right_ticks = ticks;
         state.wheels.left_target_mps = target;

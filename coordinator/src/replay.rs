@@ -57,6 +57,12 @@ pub fn load(path: &Path) -> Result<Recording> {
 /// # Errors
 /// As [`load`].
 pub fn read(buf: &[u8]) -> Result<Recording> {
+    // The mcap crate's readers trust a chunk's inner record lengths (a record longer than its
+    // chunk panics on an overflow in 0.26), so a file is first rewritten from whole, checked
+    // chunks only; what that cuts away is what the file's tail had torn.
+    let mut clean = std::io::Cursor::new(Vec::new());
+    let kept = crate::recover::recover(buf, &mut clean)?;
+    let buf = clean.get_ref().as_slice();
     let lenient = || mcap::read::Options::IgnoreEndMagic.into();
     let mut info = None;
     for record in mcap::read::LinearReader::new_with_options(buf, lenient())? {
@@ -114,6 +120,9 @@ pub fn read(buf: &[u8]) -> Result<Recording> {
                 serde_json::from_slice(&m.data).context("a world snapshot")?,
             ));
         }
+    }
+    if let crate::recover::Ending::Cut { why, .. } = kept.ending {
+        rec.truncated.get_or_insert(why);
     }
     if rec.counts.is_empty() && rec.truncated.is_some() {
         bail!(

@@ -42,7 +42,7 @@ struct Args {
     #[arg(long)]
     realtime: bool,
     /// Time limit in seconds (simulated time when simulating), more than 0 and at most 1000000.
-    #[arg(long, default_value = "600", value_parser = parse_duration, allow_negative_numbers = true)]
+    #[arg(long, default_value = "600", value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
     duration: Duration,
     /// Also write the report as JSON to this file.
     #[arg(long)]
@@ -121,23 +121,6 @@ fn parse_param(s: &str) -> Result<(String, String), String> {
     s.split_once('=')
         .map(|(k, v)| (k.to_string(), v.to_string()))
         .ok_or_else(|| format!("expected key=value, got {s:?}"))
-}
-
-/// The longest `--duration`, in seconds: over eleven days, longer than any experiment, and far
-/// inside what a `Duration` or a timer can hold.
-const MAX_DURATION_S: f64 = 1e6;
-
-fn parse_duration(s: &str) -> Result<Duration, String> {
-    let secs: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("{s:?} is not a number of seconds"))?;
-    if !(secs.is_finite() && secs > 0.0 && secs <= MAX_DURATION_S) {
-        return Err(format!(
-            "{s:?}: expected more than 0 and at most {MAX_DURATION_S} seconds"
-        ));
-    }
-    Ok(Duration::from_secs_f64(secs))
 }
 
 /// Output files claimed before the run, so an unwritable path is found before any robot moves.

@@ -56,7 +56,7 @@ pub struct SweepArgs {
     #[arg(long = "robots", value_name = "N1,N2")]
     pub robots: Vec<String>,
     /// Each run's time limit in simulated seconds (default: the coordinator's).
-    #[arg(long)]
+    #[arg(long, value_parser = simulator::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
     /// Runs at a time (default: the number of cores).
     #[arg(long)]
@@ -223,7 +223,7 @@ impl Definition {
     /// The definition from the command line.
     ///
     /// # Errors
-    /// An empty or malformed list, a duplicate, or a non-positive duration, named.
+    /// An empty or malformed list or a duplicate, named.
     pub fn from_args(a: &SweepArgs) -> Result<Self> {
         let behaviour = a.behaviour.clone().context("--behaviour is required")?;
         let seeds = parse_seeds(a.seeds.as_deref().context("--seeds is required")?)?;
@@ -243,11 +243,6 @@ impl Definition {
                 _ => bail!("--robots {s:?}: expected a number of simulated robots (1 or more)"),
             })
             .collect::<Result<Vec<_>>>()?;
-        if let Some(d) = a.duration {
-            if !d.is_finite() || d <= 0.0 {
-                bail!("--duration must be a positive number of seconds");
-            }
-        }
         Ok(Self {
             behaviour,
             worlds,
