@@ -1,16 +1,17 @@
 //! The coordinator drives robots served over TCP (SLIP) by the simulator's server, as it would
 //! robots behind serial bridges: wall-clock time, no in-process shortcuts.
 
-use std::process::Command;
+use std::process::{Command, Output};
 use std::sync::mpsc;
 
-use simulator::runtime::Pace;
+use simulator::runtime::{Pace, Truth};
 use simulator::serve::serve;
 use simulator::world::presets;
-use simulator::{SimConfig, Simulation};
+use simulator::{BodyFault, SimConfig, Simulation};
 
-#[test]
-fn square_walk_over_tcp_against_served_robots() {
+/// Serves the `open` world's first two robots over TCP, one of them with `fault`, runs
+/// `square_walk` on them through the coordinator binary, and returns its output and the truth.
+fn square_walk_over_tcp(fault: Option<(usize, BodyFault)>) -> (Output, Truth) {
     let (tx, rx) = mpsc::channel();
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let server = std::thread::spawn(move || {
@@ -22,7 +23,10 @@ fn square_walk_over_tcp_against_served_robots() {
         rt.block_on(async move {
             let mut world = presets::preset("open").unwrap();
             world.robots.truncate(2);
-            let sim = Simulation::new(world, SimConfig::default());
+            let mut sim = Simulation::new(world, SimConfig::default());
+            if let Some((index, fault)) = fault {
+                sim.set_body_fault(index, Some(fault));
+            }
             let (addrs, handle, _task) = serve(sim, "127.0.0.1", 0, Pace::WallClock).await.unwrap();
             tx.send(addrs).unwrap();
             let _ = stop_rx.await;
@@ -48,7 +52,12 @@ fn square_walk_over_tcp_against_served_robots() {
         .output()
         .unwrap();
     let _ = stop_tx.send(());
-    let truth = server.join().unwrap();
+    (out, server.join().unwrap())
+}
+
+#[test]
+fn square_walk_over_tcp_against_served_robots() {
+    let (out, truth) = square_walk_over_tcp(None);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -65,4 +74,23 @@ fn square_walk_over_tcp_against_served_robots() {
             closure * 1e3
         );
     }
+}
+
+#[test]
+fn a_served_robot_whose_encoders_never_tick_fails_square_walk() {
+    // The robot's firmware answers and reports its moves, but counts no pulse: without encoder
+    // evidence of the walk the verdict must be a failure naming it.
+    let id = presets::preset("open").unwrap().robots[1].id;
+    let (out, _) = square_walk_over_tcp(Some((1, BodyFault::DeadEncoders)));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains(&format!("robot {id}")) && text.contains("encoder"),
+        "the verdict names robot {id} and its encoders:\n{text}"
+    );
 }
