@@ -304,6 +304,12 @@ mod tests {
         }
     }
 
+    /// Where the test robot starts its square.
+    const START: Pose = Pose {
+        x: 0.3,
+        y: 0.3,
+        theta: 0.0,
+    };
     const DONE: RobotEventKind = RobotEventKind::MoveFinished {
         id: 1,
         outcome: MoveOutcome::Completed,
@@ -324,11 +330,7 @@ mod tests {
 
     #[test]
     fn queues_eight_moves_per_robot_and_judges_the_closure() {
-        let start = Pose {
-            x: 0.3,
-            y: 0.3,
-            theta: 0.0,
-        };
+        let start = START;
         let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         let intents = b.start(&world(&[(1, start), (2, start)], 0));
         assert_eq!(intents.len(), 16);
@@ -358,11 +360,7 @@ mod tests {
 
     #[test]
     fn a_robot_that_reports_its_moves_done_without_moving_fails() {
-        let start = Pose {
-            x: 0.3,
-            y: 0.3,
-            theta: 0.0,
-        };
+        let start = START;
         let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         b.start(&world(&[(1, start)], 0));
         for _ in 0..8 {
@@ -379,11 +377,7 @@ mod tests {
 
     #[test]
     fn a_walk_without_its_turns_fails() {
-        let start = Pose {
-            x: 0.3,
-            y: 0.3,
-            theta: 0.0,
-        };
+        let start = START;
         let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         b.start(&world(&[(1, start)], 0));
         // 0.4 m of path straight out and back, with a single half turn.
@@ -413,11 +407,7 @@ mod tests {
 
     #[test]
     fn a_walk_cut_mid_leg_is_planned_again_to_the_next_corner() {
-        let start = Pose {
-            x: 0.3,
-            y: 0.3,
-            theta: 0.0,
-        };
+        let start = START;
         let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
         b.start(&world(&[(1, start)], 0));
         // First leg done (straight + turn), then the link drops 4 cm into the second straight.

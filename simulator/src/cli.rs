@@ -26,6 +26,18 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
     Ok(secs)
 }
 
+/// Logs to stderr at `warn` unless `RUST_LOG` says otherwise, coloured only on a terminal (a log
+/// file or a test's captured output gets no escape codes).
+pub fn init_logging() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .init();
+}
+
 /// As [`parse_seconds`], as a `Duration`.
 pub fn parse_duration(text: &str) -> Result<std::time::Duration, String> {
     parse_seconds(text).map(std::time::Duration::from_secs_f64)

@@ -204,13 +204,7 @@ fn plan(args: &Args) -> Result<Plan> {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+    simulator::cli::init_logging();
     let mut registry = Registry::builtin();
     coordinator::panel::register_teleop(&mut registry);
     if args.list_behaviours {

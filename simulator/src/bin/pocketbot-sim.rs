@@ -71,13 +71,7 @@ fn load_world(name: &str) -> Result<simulator::World> {
 async fn main() -> Result<()> {
     let args = Args::parse();
     // Link buffer overflows are reported as warnings (at most one a second per robot).
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
+    simulator::cli::init_logging();
     if args.list_worlds {
         for name in presets::preset_names() {
             let w = presets::preset(name).context("preset")?;
