@@ -197,6 +197,40 @@ fn emit<W: Write + Seek>(writer: &mut mcap::Writer<W>, record: &Record<'_>) -> R
     Ok(())
 }
 
+/// The records inside an uncompressed chunk, each framed by [`frame`] within the chunk's bytes.
+///
+/// The mcap crate's chunk reader trusts inner record lengths (0.26 panics on an overflow when a
+/// record claims more bytes than its chunk holds), so chunks are taken apart here. Our recorder
+/// writes uncompressed chunks; the crate is built without its decompressors.
+fn chunk_records<'a>(
+    header: &records::ChunkHeader,
+    data: &'a [u8],
+) -> Result<Vec<Record<'a>>, String> {
+    if !header.compression.is_empty() {
+        return Err(format!(
+            "a chunk compressed with {:?}, which this build does not read",
+            header.compression
+        ));
+    }
+    if data.len() as u64 != header.uncompressed_size {
+        return Err(format!(
+            "a chunk of {} bytes that says it holds {}",
+            data.len(),
+            header.uncompressed_size
+        ));
+    }
+    let mut out = Vec::new();
+    let mut pos = 0;
+    while pos < data.len() {
+        let (op, body) = frame(data, pos)?;
+        let record = mcap::parse_record(op, body)
+            .map_err(|e| format!("an unreadable {} record: {e}", op_name(op)))?;
+        out.push(record);
+        pos += 9 + body.len();
+    }
+    Ok(out)
+}
+
 /// The next record's opcode and body at `pos`, or why there is none.
 fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8]), String> {
     let rest = &buf[pos..];
@@ -324,27 +358,21 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
             Record::Chunk { header, data } => {
                 // All of a chunk or none of it: check every record before writing any.
                 let mut trial = known.clone();
-                let inner = mcap::read::ChunkReader::new(header, &data)
-                    .map_err(|e| e.to_string())
-                    .and_then(|reader| {
-                        reader
-                            .map(|r| {
-                                let r = r.map_err(|e| e.to_string())?;
-                                match r {
-                                    Record::Schema { .. }
-                                    | Record::Channel(_)
-                                    | Record::Message { .. } => {
-                                        trial.admit(&r)?;
-                                        Ok(r)
-                                    }
-                                    other => Err(format!(
-                                        "a {} record inside a chunk",
-                                        op_name(other.opcode())
-                                    )),
-                                }
-                            })
-                            .collect::<Result<Vec<_>, String>>()
-                    });
+                let inner = chunk_records(&header, &data).and_then(|records| {
+                    records
+                        .into_iter()
+                        .map(|r| match r {
+                            Record::Schema { .. } | Record::Channel(_) | Record::Message { .. } => {
+                                trial.admit(&r)?;
+                                Ok(r)
+                            }
+                            other => Err(format!(
+                                "a {} record inside a chunk",
+                                op_name(other.opcode())
+                            )),
+                        })
+                        .collect::<Result<Vec<_>, String>>()
+                });
                 let inner = match inner {
                     Ok(inner) => inner,
                     Err(why) => {
