@@ -134,12 +134,19 @@ pub fn read(buf: &[u8]) -> Result<Recording> {
 }
 
 fn unhex(s: &str) -> Result<Vec<u8>> {
-    if s.len() % 2 != 0 {
+    // By bytes, not by string slices: a recording is outside input, and a multi-byte character
+    // in the hex would split inside a char.
+    let digit = |b: u8| char::from(b).to_digit(16);
+    let bytes = s.as_bytes();
+    if bytes.len() % 2 != 0 {
         bail!("odd-length hex");
     }
-    (0..s.len())
-        .step_by(2)
-        .map(|i| u8::from_str_radix(&s[i..i + 2], 16).map_err(|_| anyhow!("bad hex {s:?}")))
+    bytes
+        .chunks_exact(2)
+        .map(|pair| match (digit(pair[0]), digit(pair[1])) {
+            (Some(hi), Some(lo)) => Ok((hi * 16 + lo) as u8),
+            _ => Err(anyhow!("bad hex {s:?}")),
+        })
         .collect()
 }
 
@@ -306,5 +313,9 @@ mod tests {
         assert!(unhex("abc").is_err());
         assert!(unhex("zz").is_err());
         assert_eq!(unhex("00ff").unwrap(), vec![0, 255]);
+        assert_eq!(unhex("A0b1").unwrap(), vec![0xa0, 0xb1]);
+        // A two-byte character at an even offset used to split inside the char and panic.
+        assert!(unhex("0\u{699}a").is_err());
+        assert!(unhex("\u{699}").is_err());
     }
 }
