@@ -29,6 +29,18 @@ impl Drop for Coordinator {
 }
 
 /// Starts `coordinator ARGS` and waits for the panel's address on its stderr.
+/// A teleop run (robots wait for the panel) serving its panel on a free loopback port.
+fn teleop_panel_on_loopback() -> Coordinator {
+    coordinator(&[
+        "--behaviour",
+        "teleop",
+        "--panel",
+        "127.0.0.1:0",
+        "--duration",
+        "120",
+    ])
+}
+
 fn coordinator(args: &[&str]) -> Coordinator {
     let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
         .args(args)
@@ -193,14 +205,7 @@ fn off_loopback_every_request_needs_the_token() {
 
 #[test]
 fn loopback_page_needs_no_token_and_embeds_it() {
-    let c = coordinator(&[
-        "--behaviour",
-        "teleop",
-        "--panel",
-        "127.0.0.1:0",
-        "--duration",
-        "120",
-    ]);
+    let c = teleop_panel_on_loopback();
     assert!(!c.url.contains("token"), "{}", c.url);
     let (status, body) = http(addr_of(&c.url), "/", &[]);
     assert_eq!(status, 200);
@@ -214,14 +219,7 @@ fn loopback_page_needs_no_token_and_embeds_it() {
 
 #[test]
 fn only_the_panels_own_page_may_command_it() {
-    let c = coordinator(&[
-        "--behaviour",
-        "teleop",
-        "--panel",
-        "127.0.0.1:0",
-        "--duration",
-        "120",
-    ]);
+    let c = teleop_panel_on_loopback();
     let addr = addr_of(&c.url);
     let port = addr.port();
     let (status, page) = http(addr, "/", &[]);

@@ -24,6 +24,20 @@ fn coordinator(args: &[&str]) -> Output {
 }
 
 /// Asserts a usage refusal: status 2, every `parts` in stderr, no panic and no report.
+/// Runs `square_walk` through the binary on robots at `robots` (comma-separated TCP addresses).
+fn square_walk_over_tcp(robots: &str, duration: &str) -> Output {
+    coordinator(&[
+        "--behaviour",
+        "square_walk",
+        "--transport",
+        "tcp",
+        "--robots",
+        robots,
+        "--duration",
+        duration,
+    ])
+}
+
 fn assert_refused(out: &Output, parts: &[&str]) -> String {
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -141,16 +155,7 @@ fn a_refused_connection_says_so_within_the_time_limit() {
         .port();
     let address = format!("tcp://127.0.0.1:{port}");
     let started = Instant::now();
-    let out = coordinator(&[
-        "--behaviour",
-        "square_walk",
-        "--transport",
-        "tcp",
-        "--robots",
-        &address,
-        "--duration",
-        "2",
-    ]);
+    let out = square_walk_over_tcp(&address, "2");
     let stderr = assert_refused(&out, &["connection refused", &format!("127.0.0.1:{port}")]);
     assert!(!stderr.contains("did not say hello"), "{stderr}");
     // The hello deadline is the 2 s time limit, not the usual 10 s.
@@ -266,16 +271,7 @@ fn a_robot_of_another_protocol_version_is_refused_before_any_command() {
     hello.protocol_version = protocol::PROTOCOL_VERSION + 98;
     hello.settings_hash ^= 1;
     let (address, robot) = fake_robot(hello);
-    let out = coordinator(&[
-        "--behaviour",
-        "square_walk",
-        "--transport",
-        "tcp",
-        "--robots",
-        &address,
-        "--duration",
-        "30",
-    ]);
+    let out = square_walk_over_tcp(&address, "30");
     let received = robot.join().expect("fake robot");
     let version = protocol::PROTOCOL_VERSION;
     assert_refused(
