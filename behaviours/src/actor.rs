@@ -8,7 +8,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use actix::prelude::*;
 use robot_actor::RobotEventKind;
 
-use crate::api::{Behaviour, Intent, Verdict, WorldSnapshot};
+use crate::api::{Behaviour, Intent, LocalisationEvent, Verdict, WorldSnapshot};
 
 /// The experiment starts.
 #[derive(Message)]
@@ -38,6 +38,18 @@ pub struct Event {
 pub struct Held {
     /// Each held intent and why.
     pub held: Vec<(Intent, String)>,
+    /// The latest snapshot.
+    pub world: WorldSnapshot,
+}
+
+/// A robot was found lost or re-localised, with the latest snapshot.
+#[derive(Message)]
+#[rtype(result = "Result<Reply, Panicked>")]
+pub struct Localised {
+    /// Robot id.
+    pub robot: u16,
+    /// What happened.
+    pub event: LocalisationEvent,
     /// The latest snapshot.
     pub world: WorldSnapshot,
 }
@@ -124,5 +136,12 @@ impl Handler<Held> for BehaviourActor {
             }
             out
         })
+    }
+}
+
+impl Handler<Localised> for BehaviourActor {
+    type Result = Result<Reply, Panicked>;
+    fn handle(&mut self, msg: Localised, _: &mut Context<Self>) -> Self::Result {
+        self.guarded(|b| b.on_localisation(msg.robot, &msg.event, &msg.world))
     }
 }

@@ -9,8 +9,42 @@ use protocol::RobotState;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
 use simulator::world::Track;
 
-/// What the supervisor knows about one robot.
+/// How well the world model knows a robot's pose: one standard deviation of its position (along
+/// the worst direction) and of its heading. It grows with the distance driven and the angle
+/// turned since the last fix and shrinks when the robot's sensors match the known world.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PoseUncertainty {
+    /// Position, metres (1σ, major axis).
+    pub position_m: f64,
+    /// Heading, radians (1σ).
+    pub heading_rad: f64,
+}
+
+/// Whether the world model trusts a robot's pose.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Localisation {
+    /// The pose is tracked: what the robot senses agrees with the model.
+    #[default]
+    Tracking,
+    /// What the robot senses contradicted the model: the supervisor has stopped it and holds
+    /// every intent for it while it re-localises the robot.
+    Lost,
+}
+
+/// A change in how the world model trusts a robot's pose, told to the behaviour.
 #[derive(Clone, Debug, PartialEq)]
+pub enum LocalisationEvent {
+    /// The robot is lost: stopped, its queued moves dropped, its intents held until it is found.
+    Lost {
+        /// What contradicted the model.
+        why: String,
+    },
+    /// The robot was re-localised and takes intents again.
+    Found,
+}
+
+/// What the supervisor knows about one robot.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct RobotView {
     /// Robot id.
     pub id: u16,
@@ -28,6 +62,10 @@ pub struct RobotView {
     /// Where on the track graph it is: (track edge, offset along it in metres, distance from the
     /// tape in metres), if it is near the tape.
     pub on_track: Option<(usize, f64, f64)>,
+    /// How well the pose is known.
+    pub uncertainty: PoseUncertainty,
+    /// Whether the pose is trusted.
+    pub localisation: Localisation,
 }
 
 /// A sighting of one robot by another (thesis 7.2).
@@ -189,6 +227,17 @@ pub trait Behaviour: Send + 'static {
     /// Intents for an intent of this behaviour that the supervisor's safety check held back
     /// (it never reached the robot); a behaviour that counts its moves must count this one out.
     fn on_held(&mut self, _intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+        Vec::new()
+    }
+    /// Intents for a robot that was found lost or re-localised. When it is lost the supervisor
+    /// has already stopped it (its queued moves end `Aborted`) and holds its intents until
+    /// `Found`; a behaviour that drives it must plan it again from its pose then.
+    fn on_localisation(
+        &mut self,
+        _robot: u16,
+        _event: &LocalisationEvent,
+        _world: &WorldSnapshot,
+    ) -> Vec<Intent> {
         Vec::new()
     }
     /// The verdict once the behaviour is done; `None` while it runs.

@@ -211,6 +211,7 @@ mod tests {
             state,
             pending_moves: 0,
             on_track: None,
+            ..Default::default()
         }
     }
 

@@ -14,8 +14,8 @@ pub mod traffic_control;
 
 pub use actor::BehaviourActor;
 pub use api::{
-    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, LookedUp, Registry,
-    RobotView, Verdict, WorldSnapshot,
+    Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Localisation,
+    LocalisationEvent, LookedUp, PoseUncertainty, Registry, RobotView, Verdict, WorldSnapshot,
 };
 pub use evidence::{Odometer, Stall};
 pub use protocol::packets::MoveOutcome;

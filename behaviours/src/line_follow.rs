@@ -307,6 +307,7 @@ mod tests {
             state: Default::default(),
             pending_moves: 0,
             on_track: Some((n.edge, n.offset_m, n.distance_m)),
+            ..Default::default()
         }
     }
 

@@ -297,6 +297,7 @@ mod tests {
                     state: Default::default(),
                     pending_moves: pending,
                     on_track: None,
+                    ..Default::default()
                 })
                 .collect(),
             encounters: Vec::new(),

@@ -39,6 +39,8 @@ pub struct Outcome {
     pub restarts: u32,
     /// The world model's view of every robot at the end.
     pub views: Vec<behaviours::RobotView>,
+    /// Each robot's localisation record (lost episodes, time lost, worst uncertainty).
+    pub localisation: Vec<(u16, crate::world_model::LocalisationStats)>,
 }
 
 /// Ends the experiment now (Ctrl-C, time limit): every robot is stopped.
@@ -141,6 +143,7 @@ impl Supervisor {
                 encounters: self.encounters.clone(),
                 restarts: self.restarts,
                 views: self.model.views(),
+                localisation: self.model.localisation_stats(),
             });
         }
         // The supervisor lives on, keeping the world model current while the robots brake and

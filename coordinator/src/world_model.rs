@@ -52,6 +52,17 @@ const CURVE_DEADBAND_RAD: f64 = 6.0 * PI / 180.0;
 const LINE_LOST: u8 = 1;
 const LINE_FOLLOWING: u8 = 2;
 
+/// How one robot's localisation went over a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LocalisationStats {
+    /// Times the robot was found lost.
+    pub lost_episodes: u32,
+    /// Time spent lost (stopped and re-localising).
+    pub lost_time: std::time::Duration,
+    /// The largest position uncertainty (1σ) the model gave it, metres.
+    pub worst_uncertainty_m: f64,
+}
+
 /// The rigid transform taking a robot's odometry pose to its corrected pose.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Correction {
@@ -169,6 +180,7 @@ impl WorldModel {
                 state: Default::default(),
                 pending_moves: 0,
                 on_track: None,
+                ..Default::default()
             },
         );
     }
@@ -328,6 +340,17 @@ impl WorldModel {
     pub fn views(&self) -> Vec<RobotView> {
         let mut v: Vec<RobotView> = self.robots.iter().map(|e| e.value().clone()).collect();
         v.sort_by_key(|r| r.id);
+        v
+    }
+
+    /// Every robot's localisation record so far, in id order.
+    pub fn localisation_stats(&self) -> Vec<(u16, LocalisationStats)> {
+        let mut v: Vec<(u16, LocalisationStats)> = self
+            .robots
+            .iter()
+            .map(|e| (*e.key(), LocalisationStats::default()))
+            .collect();
+        v.sort_by_key(|(id, _)| *id);
         v
     }
 

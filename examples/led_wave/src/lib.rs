@@ -145,6 +145,7 @@ mod tests {
                     state: Default::default(),
                     pending_moves: 0,
                     on_track: None,
+                    ..Default::default()
                 })
                 .collect(),
             encounters: Vec::new(),
