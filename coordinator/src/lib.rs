@@ -20,6 +20,7 @@ pub mod panel;
 pub mod plot;
 pub mod record;
 pub mod recover;
+pub mod relocalise;
 pub mod replay;
 pub mod report;
 pub mod safety;

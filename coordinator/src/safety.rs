@@ -2,7 +2,8 @@
 //! or out of the arena is held back. Robots are their oriented 48 × 32 mm footprints grown by a
 //! tunable margin; a move is swept from where the robot's queued moves will leave it, in steps of
 //! at most 5 mm and 5°, against every other robot where it stands and where its own queued moves
-//! will leave it.
+//! will leave it. Each footprint also grows by twice its robot's position uncertainty (1σ), so a
+//! robot the world model is unsure of gets a wider berth.
 
 use behaviours::{Intent, MoveCommand, Pose, WorldSnapshot};
 
@@ -30,6 +31,9 @@ impl Default for Safety {
         }
     }
 }
+
+/// Each footprint grows by this many standard deviations of its robot's position uncertainty.
+pub const UNCERTAINTY_SIGMAS: f64 = 2.0;
 
 /// Largest step between checked poses along a path.
 const STEP_M: f64 = 0.005;
@@ -69,7 +73,9 @@ impl Safety {
             _ => return Ok(()),
         };
         let (w, h) = world.arena;
-        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
+        // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty.
+        let my_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
+        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, my_margin);
         for p in &path {
             for c in mine(*p).corners() {
                 if c.0 < 0.0 || c.1 < 0.0 || c.0 > w || c.1 > h {
@@ -89,7 +95,9 @@ impl Safety {
                     .map(|(_, p)| *p),
             );
             for q in theirs {
-                let fq = Footprint::new(q, self.length_m, self.width_m, self.margin_m);
+                let their_margin =
+                    self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
+                let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
                 // A robot already overlapping another (pushed together, or a bad estimate) may
                 // still move apart: only paths that enter an overlap are refused.
                 let overlapping_now = mine(path[0]).overlaps(&fq);

@@ -7,9 +7,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actix::prelude::*;
-use behaviours::actor::{Event, Held, Panicked, Reply, Snapshot, Start};
+use behaviours::actor::{Event, Held, Localised, Panicked, Reply, Snapshot, Start};
 use behaviours::{
-    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, Verdict, WorldSnapshot,
+    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, LocalisationEvent,
+    MoveOutcome, Verdict, WorldSnapshot,
 };
 use robot_actor::actor::{Command, Enqueue};
 use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateUpdated};
@@ -18,8 +19,9 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tracing::{info, warn};
 
+use crate::relocalise::{Action, Relocaliser};
 use crate::safety::{self, Safety};
-use crate::world_model::WorldModel;
+use crate::world_model::{Transition, WorldModel};
 
 /// Behaviour restarts allowed before the experiment fails.
 pub const MAX_RESTARTS: u32 = 3;
@@ -71,7 +73,13 @@ pub struct Supervisor {
     started: bool,
     /// Where each robot's queued moves will leave it, and when the last one was sent.
     planned: std::collections::HashMap<u16, (Pose, Instant)>,
+    /// Lost robots being re-localised; every intent for them is held meanwhile.
+    relocalising: std::collections::HashMap<u16, Relocaliser>,
 }
+
+/// A robot that is moving within this distance (centre to centre) of a lost robot, plus twice
+/// the lost robot's uncertainty, is stopped too: the lost one may be anywhere in that reach.
+const LOST_REACH_M: f64 = 0.06;
 
 /// A robot whose queue the robot reports empty this long after the last move was sent has done
 /// them all (the report of the newest move has certainly arrived by then).
@@ -107,6 +115,7 @@ impl Supervisor {
             done: Some(done),
             started: false,
             planned: Default::default(),
+            relocalising: Default::default(),
         }
     }
 
@@ -143,7 +152,7 @@ impl Supervisor {
                 encounters: self.encounters.clone(),
                 restarts: self.restarts,
                 views: self.model.views(),
-                localisation: self.model.localisation_stats(),
+                localisation: self.model.localisation_stats(Instant::now()),
             });
         }
         // The supervisor lives on, keeping the world model current while the robots brake and
@@ -242,6 +251,122 @@ impl Supervisor {
         }
     }
 
+    /// A robot's sensing contradicted the model: stop it and every robot moving within its
+    /// reach, hold its intents, tell the behaviour, and start re-localising it.
+    fn on_lost(&mut self, id: u16, why: String, ctx: &mut Context<Self>) {
+        let world = self.snapshot_peek();
+        let Some(view) = world.robot(id).cloned() else {
+            return;
+        };
+        warn!(
+            robot = id,
+            why, "robot lost: stopping it and re-localising it"
+        );
+        let (routine, first) = Relocaliser::start(&view, self.model.track(), Instant::now());
+        self.relocalising.insert(id, routine);
+        self.act(id, first, &world);
+        let reach = LOST_REACH_M + safety::UNCERTAINTY_SIGMAS * view.uncertainty.position_m;
+        let near: Vec<u16> = world
+            .robots
+            .iter()
+            .filter(|o| o.id != id && !self.relocalising.contains_key(&o.id))
+            .filter(|o| {
+                let moving = o.pending_moves > 0
+                    || o.state.wheels.left_mps.abs() > 0.005
+                    || o.state.wheels.right_mps.abs() > 0.005;
+                let planned = self.planned.get(&o.id).map_or(o.pose, |(p, _)| *p);
+                let within = |p: Pose| (p.x - view.pose.x).hypot(p.y - view.pose.y) < reach;
+                moving && (within(o.pose) || within(planned))
+            })
+            .map(|o| o.id)
+            .collect();
+        for other in near {
+            info!(robot = other, lost = id, "stopping a robot near a lost one");
+            self.planned.remove(&other);
+            if let Some(r) = self.robot(other) {
+                r.addr().do_send(Command::Stop);
+            }
+        }
+        self.tell(id, LocalisationEvent::Lost { why }, ctx);
+    }
+
+    fn tell(&mut self, id: u16, event: LocalisationEvent, ctx: &mut Context<Self>) {
+        if let Some(b) = self.behaviour.clone() {
+            let reply = b.send(Localised {
+                robot: id,
+                event,
+                world: self.snapshot_peek(),
+            });
+            ctx.spawn(
+                reply
+                    .into_actor(self)
+                    .map(|r, act, ctx| act.on_reply(r, ctx)),
+            );
+        }
+    }
+
+    /// Carries out one step of a re-localisation routine.
+    fn act(&mut self, id: u16, action: Action, world: &WorldSnapshot) {
+        match action {
+            Action::Stop => {
+                self.planned.remove(&id);
+                if let Some(r) = self.robot(id) {
+                    r.addr().do_send(Command::Stop);
+                }
+            }
+            Action::Moves(moves) => {
+                let mut held = Vec::new();
+                for command in moves {
+                    let intent = Intent::Move { robot: id, command };
+                    if !held.is_empty() || !self.carry_out_checked(intent, world) {
+                        held.push(command);
+                    }
+                }
+                if !held.is_empty() {
+                    if let Some(r) = self.relocalising.get_mut(&id) {
+                        r.held(held, Instant::now());
+                    }
+                }
+            }
+        }
+    }
+
+    /// Advances the routine of a lost robot after a state update or a transition.
+    fn relocalise(&mut self, id: u16, transition: Option<Transition>, ctx: &mut Context<Self>) {
+        let now = Instant::now();
+        let world = self.snapshot_peek();
+        let Some(view) = world.robot(id).cloned() else {
+            return;
+        };
+        let track = Arc::clone(self.model.track());
+        let Some(routine) = self.relocalising.get_mut(&id) else {
+            return;
+        };
+        let action = match transition {
+            Some(Transition::Fixed) => {
+                info!(robot = id, "lost robot found a tape: aligning it");
+                Some(routine.fixed(now))
+            }
+            _ => routine.poll(&view, &track, now),
+        };
+        if routine.aligned() {
+            if view.localisation == behaviours::Localisation::Tracking {
+                info!(robot = id, "robot re-localised");
+                self.relocalising.remove(&id);
+                self.tell(id, LocalisationEvent::Found, ctx);
+                return;
+            }
+            warn!(
+                robot = id,
+                "back on the tape, but it does not match: it stays stopped"
+            );
+            routine.give_up();
+        }
+        if let Some(action) = action {
+            self.act(id, action, &world);
+        }
+    }
+
     /// The world as it is, without consuming the new encounters.
     fn snapshot_peek(&self) -> WorldSnapshot {
         WorldSnapshot {
@@ -252,8 +377,24 @@ impl Supervisor {
         }
     }
 
-    /// Checks and sends one intent; `false` when the safety check held it back.
+    /// Checks and sends one intent; `false` when it was held back (the robot is lost, or the
+    /// safety check refused it).
     fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
+        let id = intent.robot();
+        let drives = matches!(
+            intent,
+            Intent::Move { .. } | Intent::FollowLine { .. } | Intent::WheelSpeeds { .. }
+        );
+        if drives && self.relocalising.contains_key(&id) {
+            let reason = format!("robot {id} is lost: it is being re-localised");
+            self.held.push((world.time, intent, reason));
+            return false;
+        }
+        self.carry_out_checked(intent, world)
+    }
+
+    /// Passes one intent through the safety check and sends it.
+    fn carry_out_checked(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
         let id = intent.robot();
         let from = self.planned.get(&id).map(|(p, _)| *p);
         let others: Vec<(u16, Pose)> = self
@@ -315,8 +456,17 @@ impl Actor for Supervisor {
 
 impl Handler<StateUpdated> for Supervisor {
     type Result = ();
-    fn handle(&mut self, u: StateUpdated, _: &mut Context<Self>) {
-        self.model.apply(&u);
+    fn handle(&mut self, u: StateUpdated, ctx: &mut Context<Self>) {
+        let transition = self.model.apply(&u);
+        // Robots are only stopped and re-localised while a behaviour runs them.
+        if !self.started || self.done.is_none() {
+            return;
+        }
+        if let Some(Transition::Lost(why)) = transition {
+            self.on_lost(u.robot_id, why, ctx);
+        } else if self.relocalising.contains_key(&u.robot_id) {
+            self.relocalise(u.robot_id, transition, ctx);
+        }
     }
 }
 
@@ -341,6 +491,19 @@ impl Handler<RobotEvent> for Supervisor {
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
             }
             _ => {}
+        }
+        // While a robot is re-localised its moves are the routine's (or ones the stop dropped):
+        // the behaviour does not hear of them.
+        if let Some(routine) = self.relocalising.get_mut(&e.robot_id) {
+            match &e.kind {
+                RobotEventKind::MoveFinished { outcome, .. } => {
+                    routine.move_finished(*outcome == MoveOutcome::Completed);
+                    self.relocalise(e.robot_id, None, ctx);
+                    return;
+                }
+                RobotEventKind::QueueEmpty => return,
+                _ => {}
+            }
         }
         if let Some(b) = &self.behaviour {
             let msg = Event {

@@ -5,9 +5,9 @@
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use behaviours::{Pose, RobotView};
+use behaviours::{Localisation, Pose, PoseUncertainty, RobotView};
 use dashmap::DashMap;
-use nalgebra::{Point2, Vector2};
+use nalgebra::{Matrix3, Point2, RowVector3, Vector2, Vector3};
 use robot_actor::StateUpdated;
 use simulator::world::Track;
 
@@ -32,6 +32,12 @@ const ALIGNED_MAX_RAD: f64 = 35.0 * PI / 180.0;
 /// stop against an obstacle) leave several centimetres there.
 const MARK_GATE_M: f64 = 0.1;
 const MARK_GAIN: f64 = 0.8;
+/// A robot driving moves takes a change of colour as a mark's end only after the old colour held
+/// for this much travel.
+const MARK_SETTLED_M: f64 = 0.02;
+/// Its gate is three standard deviations of its position, at least this: a colour sensor that
+/// flickers beside a mark mid-edge must not be taken for one at the mark's end.
+const MARK_GATE_MIN_M: f64 = 0.015;
 /// Heading and tape must agree this well (either direction) before the tape corrects the heading:
 /// a robot turning in place sweeps its sensor across tape it is not following.
 const ALIGNED_RAD: f64 = 20.0 * PI / 180.0;
@@ -48,6 +54,39 @@ const HEADING_GAIN: f64 = 0.05;
 /// On a curve a follower's heading differs from the tape's by how it cuts the curve (about 3°);
 /// only heading errors beyond this are corrected there.
 const CURVE_DEADBAND_RAD: f64 = 6.0 * PI / 180.0;
+/// Odometry noise, as variance per metre driven: along the heading (wheel diameter and slip),
+/// and of the heading itself (wheel base, uneven slip); and of the heading per radian turned.
+/// Chosen against the errors measured in physics: 1.4–93 mm after 30–45 m of moves, a few
+/// degrees of heading after a lap of turns.
+const Q_ALONG_M2_PER_M: f64 = 0.005 * 0.005;
+const Q_HEADING_RAD2_PER_M: f64 = 0.0175 * 0.0175;
+const Q_HEADING_RAD2_PER_RAD: f64 = 0.0070 * 0.0070;
+/// Variance of one sighting of the tape across the robot (spot pitch, tape edges, weave) and of
+/// the heading a straight tape gives; of a mark end's position along the tape.
+const R_LATERAL_M2: f64 = 0.002 * 0.002;
+const R_HEADING_RAD2: f64 = 0.05 * 0.05;
+const R_MARK_M2: f64 = 0.005 * 0.005;
+/// How well the world file's start poses are known.
+const START_SIGMA_M: f64 = 0.002;
+const START_SIGMA_RAD: f64 = 0.0175;
+/// Contradictions: this much travel with the sensor seeing no tape where the model puts it
+/// squarely on one, or seeing tape where the model has none, and the robot is lost.
+const CONTRADICTION_M: f64 = 0.025;
+/// "Squarely on a tape": the sensor, with twice its uncertainty, within this of the tape's
+/// centre line (the spots reach about 13 mm either side) and clear of every node, where tapes
+/// end or meet.
+const SQUARELY_M: f64 = 0.008;
+const NODE_CLEAR_M: f64 = 0.03;
+/// Tape seen where the model has none: the seen point this far from every tape, or three times
+/// the uncertainty if that is more.
+const STRAY_M: f64 = 0.02;
+/// A position uncertainty (1σ) beyond this and the model no longer knows where the robot is.
+pub const LOST_SIGMA_M: f64 = 0.03;
+/// A robot found lost is at least this uncertain (1σ) until a fix: the line sensor reaches
+/// about 13 mm either side, and it lost the tape.
+const LOST_FLOOR_M: f64 = 0.015;
+/// While lost, a tape seen within this of the estimate is taken as the one the robot is beside.
+pub const RELOCATE_M: f64 = 0.08;
 /// `LineState::flags` bits: no spot sees the line; line following is on.
 const LINE_LOST: u8 = 1;
 const LINE_FOLLOWING: u8 = 2;
@@ -94,13 +133,95 @@ impl Correction {
 }
 
 /// Per robot: the correction, and how far it has followed tape without a match.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug)]
 struct Estimate {
     correction: Correction,
     last_odometry: Option<Pose>,
     unmatched_m: f64,
     /// Colour last seen under the sensor (`protocol::packets::Mark` as a byte).
     last_mark: u8,
+    /// Travel since the colour under the sensor last changed.
+    mark_held_m: f64,
+    /// Covariance of the corrected pose (x, y, θ).
+    cov: Matrix3<f64>,
+    /// Travel with no tape under the sensor where the model puts it squarely on one.
+    no_tape_m: f64,
+    /// Travel with tape under the sensor where the model has none.
+    stray_tape_m: f64,
+    /// Set while the robot is lost.
+    lost: Option<Lost>,
+    stats: LocalisationStats,
+}
+
+impl Default for Estimate {
+    fn default() -> Self {
+        Self {
+            correction: Correction::default(),
+            last_odometry: None,
+            unmatched_m: 0.0,
+            last_mark: 0,
+            mark_held_m: 0.0,
+            cov: Matrix3::from_diagonal(&nalgebra::Vector3::new(
+                START_SIGMA_M * START_SIGMA_M,
+                START_SIGMA_M * START_SIGMA_M,
+                START_SIGMA_RAD * START_SIGMA_RAD,
+            )),
+            no_tape_m: 0.0,
+            stray_tape_m: 0.0,
+            lost: None,
+            stats: LocalisationStats::default(),
+        }
+    }
+}
+
+/// A lost episode in progress.
+#[derive(Clone, Debug)]
+struct Lost {
+    since: tokio::time::Instant,
+    /// A tape found while lost has fixed the position across it.
+    fixed: bool,
+}
+
+/// A change in how the model trusts a robot's pose, from one state update.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Transition {
+    /// What the robot senses contradicts the model.
+    Lost(String),
+    /// While lost, a tape seen near the estimate fixed the position across it.
+    Fixed,
+    /// The robot is tracked again: its sensor matches the tape it drives along.
+    Found,
+}
+
+/// The covariance after a correction of gain `k` (a column) on a measurement `h` (a row) of
+/// variance `r`, in Joseph form, so it holds for a gain that is fixed rather than optimal.
+fn corrected(cov: &Matrix3<f64>, h: RowVector3<f64>, k: Vector3<f64>, r: f64) -> Matrix3<f64> {
+    let a = Matrix3::identity() - k * h;
+    a * cov * a.transpose() + k * k.transpose() * r
+}
+
+/// 1σ of the position along its worst direction, and of the heading.
+fn sigmas(cov: &Matrix3<f64>) -> PoseUncertainty {
+    let (a, b, c) = (cov[(0, 0)], cov[(0, 1)], cov[(1, 1)]);
+    let major = (a + c) / 2.0 + (((a - c) / 2.0).powi(2) + b * b).sqrt();
+    PoseUncertainty {
+        position_m: major.max(0.0).sqrt(),
+        heading_rad: cov[(2, 2)].max(0.0).sqrt(),
+    }
+}
+
+/// 1σ of the position along unit vector `n`.
+fn sigma_along(cov: &Matrix3<f64>, n: Vector2<f64>) -> f64 {
+    let v = n.x * n.x * cov[(0, 0)] + 2.0 * n.x * n.y * cov[(0, 1)] + n.y * n.y * cov[(1, 1)];
+    v.max(0.0).sqrt()
+}
+
+/// A tape sighting matched to the model: the corrected pose, the tape's normal the correction
+/// moved it along, and the gain applied to the heading (0 when the heading was left alone).
+struct TapeMatch {
+    pose: Pose,
+    normal: Vector2<f64>,
+    heading_gain: f64,
 }
 
 /// Every junction and the radius around it in which its tapes run too close together to be told
@@ -163,6 +284,11 @@ impl WorldModel {
         }
     }
 
+    /// The track the model places robots on.
+    pub fn track(&self) -> &Arc<Track> {
+        &self.track
+    }
+
     /// The map itself, for readers on other threads.
     pub fn robots(&self) -> Arc<DashMap<u16, RobotView>> {
         Arc::clone(&self.robots)
@@ -185,45 +311,167 @@ impl WorldModel {
         );
     }
 
-    /// Takes one state update.
-    pub fn apply(&self, u: &StateUpdated) {
-        let mut estimate = self
+    /// Takes one state update; says when the robot's localisation changed.
+    pub fn apply(&self, u: &StateUpdated) -> Option<Transition> {
+        let mut e = self
             .estimates
             .get(&u.robot_id)
-            .map(|e| *e)
+            .map(|e| e.clone())
             .unwrap_or_default();
-        let driven = estimate
-            .last_odometry
-            .map_or(0.0, |p| (u.pose.x - p.x).hypot(u.pose.y - p.y));
-        estimate.last_odometry = Some(u.pose);
-        let mut pose = estimate.correction.apply(u.pose);
-        // Only while the firmware follows the tape: then the tape is known to be the one the
-        // robot is on. A robot driving moves crosses and skirts tapes it is not on (at forks,
-        // sidings, crossings), and there a wrong match moved estimates by centimetres while its
-        // odometry alone stayed within millimetres.
-        if u.state.line.flags & LINE_LOST == 0 && u.state.line.flags & LINE_FOLLOWING != 0 {
-            let widen = GATE_GROWTH_PER_M * estimate.unmatched_m;
-            let gate_m = (MATCH_M + widen).min(MATCH_MAX_M);
-            let gate_rad = (ALIGNED_RAD + widen / MATCH_MAX_M * ALIGNED_RAD).min(ALIGNED_MAX_RAD);
-            if let Some(better) = self.match_tape(pose, u.state.line.position_um, gate_m, gate_rad)
-            {
-                pose = better;
-                estimate.correction = Correction::between(u.pose, pose);
-                estimate.unmatched_m = 0.0;
+        let (driven, turned) = e.last_odometry.map_or((0.0, 0.0), |p| {
+            let turned = wrap(u.pose.theta - p.theta);
+            let mid = p.theta + turned / 2.0;
+            let step = Vector2::new(u.pose.x - p.x, u.pose.y - p.y);
+            (step.dot(&Vector2::new(mid.cos(), mid.sin())), turned)
+        });
+        if e.last_odometry.is_none() {
+            // A robot may start on a mark: that is no mark's end.
+            e.last_mark = u.state.line.mark;
+        }
+        e.last_odometry = Some(u.pose);
+        let mut pose = e.correction.apply(u.pose);
+        // The odometry step carries the covariance forward: the heading's uncertainty becomes
+        // uncertainty across the path, and each step adds its own noise.
+        let mid = pose.theta - turned / 2.0;
+        let (s, c) = mid.sin_cos();
+        let f = Matrix3::new(1.0, 0.0, -driven * s, 0.0, 1.0, driven * c, 0.0, 0.0, 1.0);
+        let g = Vector3::new(c, s, 0.0);
+        let q_heading = Q_HEADING_RAD2_PER_M * driven.abs() + Q_HEADING_RAD2_PER_RAD * turned.abs();
+        e.cov = f * e.cov * f.transpose()
+            + g * g.transpose() * (Q_ALONG_M2_PER_M * driven.abs())
+            + Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, q_heading));
+        let sees_tape = u.state.line.flags & LINE_LOST == 0;
+        let following = sees_tape && u.state.line.flags & LINE_FOLLOWING != 0;
+        let position_um = u.state.line.position_um;
+        let mut transition = None;
+        let searching = e.lost.as_ref().is_some_and(|l| !l.fixed);
+        if searching {
+            if sees_tape {
+                if let Some((better, n)) = self.relocate(pose, position_um) {
+                    pose = better;
+                    e.correction = Correction::between(u.pose, pose);
+                    let h = RowVector3::new(n.x, n.y, 0.0);
+                    e.cov = corrected(&e.cov, h, h.transpose(), R_LATERAL_M2);
+                    if let Some(l) = e.lost.as_mut() {
+                        l.fixed = true;
+                    }
+                    transition = Some(Transition::Fixed);
+                }
+            }
+        } else if sees_tape {
+            let sigma = sigmas(&e.cov);
+            let (gate_m, gate_rad) = if following {
+                // A follower is on some tape whatever the model says: the gates widen with the
+                // distance it followed tape without a match.
+                let widen = GATE_GROWTH_PER_M * e.unmatched_m;
+                (
+                    (MATCH_M + widen)
+                        .max(3.0 * sigma.position_m)
+                        .min(MATCH_MAX_M),
+                    (ALIGNED_RAD + widen / MATCH_MAX_M * ALIGNED_RAD).min(ALIGNED_MAX_RAD),
+                )
             } else {
-                estimate.unmatched_m += driven;
+                (
+                    MATCH_M.max(3.0 * sigma.position_m).min(MATCH_MAX_M),
+                    (ALIGNED_RAD + 3.0 * sigma.heading_rad).min(ALIGNED_MAX_RAD),
+                )
+            };
+            // A robot driving moves is corrected by the filter's own gain, through which a
+            // lateral offset that keeps growing as it drives also corrects its heading; one
+            // standing still reads the same offset again and again, which is no new evidence.
+            let moved = driven.abs() > 1e-4 || turned.abs() > 1e-3;
+            let matched = if following {
+                self.match_tape(pose, position_um, gate_m, gate_rad)
+                    .map(|m| {
+                        let h = RowVector3::new(m.normal.x, m.normal.y, 0.0);
+                        e.cov = corrected(&e.cov, h, h.transpose() * LATERAL_GAIN, R_LATERAL_M2);
+                        if m.heading_gain > 0.0 {
+                            let h = RowVector3::new(0.0, 0.0, 1.0);
+                            e.cov = corrected(
+                                &e.cov,
+                                h,
+                                h.transpose() * m.heading_gain,
+                                R_HEADING_RAD2,
+                            );
+                        }
+                        m.pose
+                    })
+            } else if moved {
+                self.filter_tape(pose, &e.cov, position_um, gate_rad)
+                    .map(|(better, cov)| {
+                        e.cov = cov;
+                        better
+                    })
+            } else {
+                None
+            };
+            if let Some(better) = matched {
+                pose = better;
+                e.correction = Correction::between(u.pose, pose);
+                e.unmatched_m = 0.0;
+                if let Some(l) = e.lost.take() {
+                    e.stats.lost_time += u.at.saturating_duration_since(l.since);
+                    transition = Some(Transition::Found);
+                }
+            } else if following {
+                e.unmatched_m += driven.abs();
             }
             let mark = u.state.line.mark;
-            if mark != estimate.last_mark {
-                let colour = if mark != 0 { mark } else { estimate.last_mark };
-                if let Some(better) = self.at_mark_end(pose, colour) {
+            // A robot driving moves counts a change of colour only after the old colour held for
+            // a while: at a mark's edge its colour sensor flickers.
+            // It must also be driving along, not turning on the spot (which sweeps the sensor
+            // off a mark and back), and the end must be within what its uncertainty allows.
+            let settled = following
+                || (e.mark_held_m > MARK_SETTLED_M && driven.abs() > 1e-4 && turned.abs() < 0.01);
+            let gate_m = if following {
+                MARK_GATE_M
+            } else {
+                (3.0 * sigmas(&e.cov).position_m).clamp(MARK_GATE_MIN_M, MARK_GATE_M)
+            };
+            if mark != e.last_mark && settled {
+                let colour = if mark != 0 { mark } else { e.last_mark };
+                let entering = mark != 0;
+                let end = self.at_mark_end(pose, colour, entering, following, gate_m);
+                if let Some((better, t)) = end {
                     pose = better;
-                    estimate.correction = Correction::between(u.pose, pose);
+                    e.correction = Correction::between(u.pose, pose);
+                    let h = RowVector3::new(t.x, t.y, 0.0);
+                    e.cov = corrected(&e.cov, h, h.transpose() * MARK_GAIN, R_MARK_M2);
                 }
             }
         }
-        estimate.last_mark = u.state.line.mark;
-        self.estimates.insert(u.robot_id, estimate);
+        if u.state.line.mark == e.last_mark {
+            e.mark_held_m += driven.abs();
+        } else {
+            e.mark_held_m = 0.0;
+        }
+        e.last_mark = u.state.line.mark;
+        if e.lost.is_none() {
+            if let Some(why) = self.contradiction(&mut e, pose, sees_tape, position_um, driven) {
+                e.lost = Some(Lost {
+                    since: u.at,
+                    fixed: false,
+                });
+                e.stats.lost_episodes += 1;
+                e.no_tape_m = 0.0;
+                e.stray_tape_m = 0.0;
+                // The contradiction says the estimate is off by at least what the line sensor
+                // reaches either side; the safety check keeps everyone that much farther away.
+                let floor = LOST_FLOOR_M * LOST_FLOOR_M;
+                for i in 0..2 {
+                    e.cov[(i, i)] = e.cov[(i, i)].max(floor);
+                }
+                transition = Some(Transition::Lost(why));
+            }
+        }
+        let uncertainty = sigmas(&e.cov);
+        e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
+        let localisation = if e.lost.is_some() {
+            Localisation::Lost
+        } else {
+            Localisation::Tracking
+        };
+        self.estimates.insert(u.robot_id, e);
         let (s, c) = pose.theta.sin_cos();
         let sensor = Point2::new(pose.x + SENSOR_AHEAD_M * c, pose.y + SENSOR_AHEAD_M * s);
         // Only robots over tape are looked up: most of the floor is white.
@@ -242,7 +490,145 @@ impl WorldModel {
             view.state = u.state;
             view.pending_moves = usize::from(u.state.locomotion.queue_len);
             view.on_track = on_track;
+            view.uncertainty = uncertainty;
+            view.localisation = localisation;
         }
+        transition
+    }
+
+    /// Why what the robot senses contradicts the model, once it has for long enough.
+    fn contradiction(
+        &self,
+        e: &mut Estimate,
+        pose: Pose,
+        sees_tape: bool,
+        position_um: i16,
+        driven: f64,
+    ) -> Option<String> {
+        let sigma = sigmas(&e.cov);
+        if sigma.position_m > LOST_SIGMA_M {
+            return Some(format!(
+                "its position is uncertain by {:.0} mm (1σ), beyond {:.0} mm",
+                sigma.position_m * 1e3,
+                LOST_SIGMA_M * 1e3
+            ));
+        }
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let sensor = Point2::new(pose.x, pose.y) + heading * SENSOR_AHEAD_M;
+        if sees_tape {
+            e.no_tape_m = 0.0;
+            let right = Vector2::new(heading.y, -heading.x);
+            let seen = sensor + right * (f64::from(position_um) * 1e-6);
+            let far = self
+                .track
+                .nearest(seen)
+                .is_none_or(|n| n.distance_m > STRAY_M.max(3.0 * sigma.position_m));
+            e.stray_tape_m = if far {
+                e.stray_tape_m + driven.abs()
+            } else {
+                0.0
+            };
+            if e.stray_tape_m > CONTRADICTION_M {
+                return Some(format!(
+                    "its line sensor saw tape for {:.0} mm where the model has none",
+                    e.stray_tape_m * 1e3
+                ));
+            }
+        } else {
+            e.stray_tape_m = 0.0;
+            let squarely = self.track.nearest(sensor).is_some_and(|n| {
+                let len = self.track.edge_length(n.edge);
+                let normal = Vector2::new(-n.tangent.y, n.tangent.x);
+                n.distance_m + 2.0 * sigma_along(&e.cov, normal) < SQUARELY_M
+                    && n.tangent.dot(&heading).abs() > ALIGNED_RAD.cos()
+                    && n.offset_m > NODE_CLEAR_M
+                    && n.offset_m < len - NODE_CLEAR_M
+                    && !self.in_junction(n.point)
+            });
+            e.no_tape_m = if squarely {
+                e.no_tape_m + driven.abs()
+            } else {
+                0.0
+            };
+            if e.no_tape_m > CONTRADICTION_M {
+                return Some(format!(
+                    "its line sensor saw no tape for {:.0} mm where the model puts it on one",
+                    e.no_tape_m * 1e3
+                ));
+            }
+        }
+        None
+    }
+
+    /// An extended Kalman filter update from one sighting of a tape along the robot's heading:
+    /// the offset across the tape is measured, and through the covariance's cross terms it moves
+    /// the heading too. `None` when the sighting cannot be matched to one tape: near a junction,
+    /// across the heading, or beyond three standard deviations of the expected offset.
+    fn filter_tape(
+        &self,
+        pose: Pose,
+        cov: &Matrix3<f64>,
+        position_um: i16,
+        gate_rad: f64,
+    ) -> Option<(Pose, Matrix3<f64>)> {
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let right = Vector2::new(heading.y, -heading.x);
+        let centre = Point2::new(pose.x, pose.y);
+        let arm = heading * SENSOR_AHEAD_M + right * (f64::from(position_um) * 1e-6);
+        let seen = centre + arm;
+        let at = self.track.nearest(seen)?;
+        if self.in_junction(at.point) || at.tangent.dot(&heading).abs() < gate_rad.cos() {
+            return None;
+        }
+        let normal = Vector2::new(-at.tangent.y, at.tangent.x);
+        let innovation = normal.dot(&(at.point - seen));
+        // d(seen)/dθ is the arm turned by 90°.
+        let h = RowVector3::new(normal.x, normal.y, normal.dot(&Vector2::new(-arm.y, arm.x)));
+        let s = (h * cov * h.transpose())[(0, 0)] + R_LATERAL_M2;
+        if innovation.abs() > MATCH_MAX_M
+            || innovation * innovation > 9.0 * s.max(MATCH_M * MATCH_M / 9.0)
+        {
+            return None;
+        }
+        let k = cov * h.transpose() / s;
+        let dx = k * innovation;
+        let cov = corrected(cov, h, k, R_LATERAL_M2);
+        Some((
+            Pose {
+                x: pose.x + dx[0],
+                y: pose.y + dx[1],
+                theta: pose.theta + dx[2],
+            },
+            cov,
+        ))
+    }
+
+    fn in_junction(&self, p: Point2<f64>) -> bool {
+        self.junctions.iter().any(|(j, r)| (j - p).norm() < *r)
+    }
+
+    /// While lost: the tape the sensor sees, taken to be the nearest one to where the model
+    /// puts the sighting, and the pose moved across that tape to agree with it.
+    fn relocate(&self, pose: Pose, position_um: i16) -> Option<(Pose, Vector2<f64>)> {
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let right = Vector2::new(heading.y, -heading.x);
+        let seen = Point2::new(pose.x, pose.y)
+            + heading * SENSOR_AHEAD_M
+            + right * (f64::from(position_um) * 1e-6);
+        let n = self.track.nearest(seen)?;
+        if n.distance_m > RELOCATE_M || self.in_junction(n.point) {
+            return None;
+        }
+        let normal = Vector2::new(-n.tangent.y, n.tangent.x);
+        let shift = normal * normal.dot(&(n.point - seen));
+        Some((
+            Pose {
+                x: pose.x + shift.x,
+                y: pose.y + shift.y,
+                theta: pose.theta,
+            },
+            normal,
+        ))
     }
 
     /// The pose moved part of the way towards agreeing with the tape the line sensor sees, or
@@ -251,19 +637,20 @@ impl WorldModel {
     /// The sensor measures where the tape is across the robot (`position_um`, positive to the
     /// right); the track says where that tape is. Along the tape nothing is measured, so only the
     /// lateral offset and the heading are corrected.
-    fn match_tape(&self, pose: Pose, position_um: i16, gate_m: f64, gate_rad: f64) -> Option<Pose> {
+    fn match_tape(
+        &self,
+        pose: Pose,
+        position_um: i16,
+        gate_m: f64,
+        gate_rad: f64,
+    ) -> Option<TapeMatch> {
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
         let centre = Point2::new(pose.x, pose.y);
         let sensor = centre + heading * SENSOR_AHEAD_M;
         let seen = sensor + right * (f64::from(position_um) * 1e-6);
         let at_seen = self.track.nearest(seen)?;
-        if at_seen.distance_m > gate_m
-            || self
-                .junctions
-                .iter()
-                .any(|(j, r)| (j - at_seen.point).norm() < *r)
-        {
+        if at_seen.distance_m > gate_m || self.in_junction(at_seen.point) {
             return None;
         }
         let along = at_seen.tangent.dot(&heading);
@@ -285,23 +672,38 @@ impl WorldModel {
             && !self.track.edges()[at_seen.edge].is_arc();
         let tape_dir = at_centre.tangent * at_centre.tangent.dot(&heading).signum();
         let err = wrap(tape_dir.y.atan2(tape_dir.x) - pose.theta);
-        let dtheta = if straight {
-            HEADING_GAIN * err
+        let (dtheta, heading_gain) = if straight {
+            (HEADING_GAIN * err, HEADING_GAIN)
         } else {
             // Only the part beyond how a follower cuts a curve: a slip of the odometry on a curve
             // (16° was seen on a colour mark) would otherwise carry the estimate off the tape.
-            HEADING_GAIN * (err - err.clamp(-CURVE_DEADBAND_RAD, CURVE_DEADBAND_RAD))
+            let beyond = err - err.clamp(-CURVE_DEADBAND_RAD, CURVE_DEADBAND_RAD);
+            (
+                HEADING_GAIN * beyond,
+                if beyond != 0.0 { HEADING_GAIN } else { 0.0 },
+            )
         };
-        Some(Pose {
-            x: pose.x + LATERAL_GAIN * lateral.x,
-            y: pose.y + LATERAL_GAIN * lateral.y,
-            theta: pose.theta + dtheta,
+        Some(TapeMatch {
+            pose: Pose {
+                x: pose.x + LATERAL_GAIN * lateral.x,
+                y: pose.y + LATERAL_GAIN * lateral.y,
+                theta: pose.theta + dtheta,
+            },
+            normal,
+            heading_gain,
         })
     }
 
     /// The pose moved along the tape so that the sensor sits on the nearest end of a mark of
     /// `colour` (a `protocol::packets::Mark` byte), or `None` when no such end is near.
-    fn at_mark_end(&self, pose: Pose, colour: u8) -> Option<Pose> {
+    fn at_mark_end(
+        &self,
+        pose: Pose,
+        colour: u8,
+        entering: bool,
+        following: bool,
+        gate_m: f64,
+    ) -> Option<(Pose, Vector2<f64>)> {
         let wanted = match colour {
             1 => simulator::world::Mark::Red,
             2 => simulator::world::Mark::Blue,
@@ -314,19 +716,38 @@ impl WorldModel {
             .track
             .edges()
             .iter()
-            .filter(|e| e.mark == Some(wanted))
-            .flat_map(|e| [nodes[e.from].position, nodes[e.to].position])
-            .map(|p| (p, (p - sensor).norm()))
-            .filter(|(_, d)| *d < MARK_GATE_M)
+            .enumerate()
+            .filter(|(_, e)| e.mark == Some(wanted))
+            .flat_map(|(i, e)| {
+                // Each end with the tape's direction into the mark from there.
+                let len = self.track.edge_length(i);
+                [
+                    (nodes[e.from].position, self.track.point_at(i, 0.0).1),
+                    (nodes[e.to].position, -self.track.point_at(i, len).1),
+                ]
+            })
+            .filter(|(_, into)| {
+                // A robot driving moves may pass a mark's end on another tape, or see a mark
+                // flicker while it runs along its edge: only an end it drives into (or out of)
+                // along the marked tape is where it is.
+                following
+                    || (into.dot(&heading) > ALIGNED_RAD.cos()) == entering
+                        && into.dot(&heading).abs() > ALIGNED_RAD.cos()
+            })
+            .map(|(p, _)| (p, (p - sensor).norm()))
+            .filter(|(_, d)| *d < gate_m)
             .min_by(|a, b| a.1.total_cmp(&b.1))?
             .0;
         let tangent = self.track.nearest(end)?.tangent;
         let shift = tangent * (tangent.dot(&(end - sensor)) * MARK_GAIN);
-        Some(Pose {
-            x: pose.x + shift.x,
-            y: pose.y + shift.y,
-            theta: pose.theta,
-        })
+        Some((
+            Pose {
+                x: pose.x + shift.x,
+                y: pose.y + shift.y,
+                theta: pose.theta,
+            },
+            tangent,
+        ))
     }
 
     /// Marks a robot's link as down.
@@ -343,12 +764,19 @@ impl WorldModel {
         v
     }
 
-    /// Every robot's localisation record so far, in id order.
-    pub fn localisation_stats(&self) -> Vec<(u16, LocalisationStats)> {
+    /// Every robot's localisation record so far, in id order (time lost counts an episode still
+    /// in progress up to `now`).
+    pub fn localisation_stats(&self, now: tokio::time::Instant) -> Vec<(u16, LocalisationStats)> {
         let mut v: Vec<(u16, LocalisationStats)> = self
-            .robots
+            .estimates
             .iter()
-            .map(|e| (*e.key(), LocalisationStats::default()))
+            .map(|e| {
+                let mut stats = e.value().stats;
+                if let Some(l) = &e.value().lost {
+                    stats.lost_time += now.saturating_duration_since(l.since);
+                }
+                (*e.key(), stats)
+            })
             .collect();
         v.sort_by_key(|(id, _)| *id);
         v

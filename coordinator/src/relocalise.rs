@@ -1,0 +1,255 @@
+//! Re-localising a lost robot. The world model says when what a robot senses contradicts it; the
+//! supervisor then stops the robot and runs this routine, which finds the tape the robot should
+//! be beside and puts the robot back on it, facing the way it drove:
+//!
+//! 1. wait for the wheels to stop;
+//! 2. face across the tape and creep to one side, then back through to the other, as far as the
+//!    model's uncertainty reaches (the model fixes the position across the first tape the
+//!    sensor sees, see [`crate::world_model::Transition::Fixed`]);
+//! 3. stop there, drive the centre onto the tape, face along it and creep forward until the model
+//!    tracks the robot again on that tape.
+//!
+//! If the sweep finds no tape, the robot stays stopped and lost: it is safer where it stands than
+//! driving on a guess.
+
+use std::time::Duration;
+
+use behaviours::{MoveCommand, Pose, RobotView};
+use nalgebra::{Point2, Vector2};
+use simulator::world::Track;
+use tokio::time::Instant;
+
+use crate::world_model::RELOCATE_M;
+
+/// Speed of the search and of the moves back onto the tape: slow enough that the sensor sees a
+/// 6 mm tape in several samples and the robot stops within a few millimetres.
+const SEARCH_MPS: f32 = 0.03;
+/// Turning speed (wheel speed) of the routine's turns.
+const TURN_MPS: f32 = 0.03;
+/// Longest wait for the wheels to stop after a stop command.
+const BRAKE_LIMIT: Duration = Duration::from_millis(600);
+/// Below this wheel speed a robot counts as stopped.
+const STOPPED_MPS: f32 = 0.005;
+/// The creep along the tape once the robot faces along it.
+const CREEP_M: f32 = 0.03;
+/// A move the safety check holds is tried again this much later, at most this many times.
+const RETRY_AFTER: Duration = Duration::from_millis(500);
+const MAX_RETRIES: u32 = 20;
+
+/// What the routine asks the supervisor to do for its robot.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Action {
+    /// Stop the robot and drop its queue.
+    Stop,
+    /// Queue these moves (checked by the safety check; held ones are reported back).
+    Moves(Vec<MoveCommand>),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Step {
+    /// Waiting for the wheels to stop, then `next`.
+    Braking { since: Instant, then: After },
+    /// Sweeping across the tape.
+    Sweeping,
+    /// Driving onto the tape and facing along it.
+    Aligning,
+    /// The routine gave up: the robot stays stopped.
+    GaveUp,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum After {
+    Sweep,
+    Align,
+}
+
+/// The routine for one lost robot.
+#[derive(Clone, Debug)]
+pub struct Relocaliser {
+    /// The robot.
+    pub robot: u16,
+    /// Unit tangent of the tape nearest to where the robot was lost.
+    tape: Vector2<f64>,
+    /// Heading when it was lost: it faces the same way along the tape afterwards.
+    heading: f64,
+    /// How far to each side the sweep goes.
+    reach_m: f64,
+    step: Step,
+    /// Moves of this routine still queued on the robot.
+    outstanding: usize,
+    /// When a held move may be tried again, and how often it was.
+    retry_at: Option<Instant>,
+    retries: u32,
+    /// Moves to try again.
+    pending: Vec<MoveCommand>,
+}
+
+impl Relocaliser {
+    /// Starts the routine for a robot lost at `view`; the first action is the stop.
+    pub fn start(view: &RobotView, track: &Track, now: Instant) -> (Self, Action) {
+        let centre = Point2::new(view.pose.x, view.pose.y);
+        let tape = track.nearest(centre).map_or(
+            Vector2::new(view.pose.theta.cos(), view.pose.theta.sin()),
+            |n| n.tangent,
+        );
+        let reach_m = (3.0 * view.uncertainty.position_m).clamp(0.04, RELOCATE_M);
+        (
+            Self {
+                robot: view.id,
+                tape,
+                heading: view.pose.theta,
+                reach_m,
+                step: Step::Braking {
+                    since: now,
+                    then: After::Sweep,
+                },
+                outstanding: 0,
+                retry_at: None,
+                retries: 0,
+                pending: Vec::new(),
+            },
+            Action::Stop,
+        )
+    }
+
+    /// Gives up: the robot stays stopped where it is.
+    pub fn give_up(&mut self) {
+        self.step = Step::GaveUp;
+        self.pending.clear();
+        self.retry_at = None;
+    }
+
+    /// Whether the routine gave up.
+    pub fn gave_up(&self) -> bool {
+        self.step == Step::GaveUp
+    }
+
+    /// Whether the robot is back on the tape, facing along it, with the routine's moves done.
+    pub fn aligned(&self) -> bool {
+        self.step == Step::Aligning && self.outstanding == 0 && self.pending.is_empty()
+    }
+
+    /// The model fixed the robot's position across a tape: stop the sweep there.
+    pub fn fixed(&mut self, now: Instant) -> Action {
+        self.pending.clear();
+        self.outstanding = 0;
+        self.retry_at = None;
+        self.step = Step::Braking {
+            since: now,
+            then: After::Align,
+        };
+        Action::Stop
+    }
+
+    /// One of the robot's moves ended. Aborted ones are those a stop dropped (the behaviour's
+    /// when the robot was found lost, the sweep's when it found the tape): not counted.
+    pub fn move_finished(&mut self, completed: bool) {
+        if !completed {
+            return;
+        }
+        self.outstanding = self.outstanding.saturating_sub(1);
+        if self.outstanding == 0 && self.step == Step::Sweeping && self.pending.is_empty() {
+            // The whole sweep went by without a tape.
+            self.step = Step::GaveUp;
+        }
+    }
+
+    /// Some of the routine's moves were held by the safety check: the robot stands; try them
+    /// again a little later.
+    pub fn held(&mut self, moves: Vec<MoveCommand>, now: Instant) {
+        self.outstanding = self.outstanding.saturating_sub(moves.len());
+        self.pending = moves;
+        self.retries += 1;
+        if self.retries > MAX_RETRIES {
+            self.step = Step::GaveUp;
+            self.pending.clear();
+        } else {
+            self.retry_at = Some(now + RETRY_AFTER);
+        }
+    }
+
+    /// The next action, given the robot's latest view.
+    pub fn poll(&mut self, view: &RobotView, track: &Track, now: Instant) -> Option<Action> {
+        if let Some(at) = self.retry_at {
+            if now < at {
+                return None;
+            }
+            self.retry_at = None;
+            let moves = std::mem::take(&mut self.pending);
+            self.outstanding += moves.len();
+            return Some(Action::Moves(moves));
+        }
+        let Step::Braking { since, then } = self.step else {
+            return None;
+        };
+        let wheels = view.state.wheels;
+        let stopped = wheels.left_mps.abs() < STOPPED_MPS && wheels.right_mps.abs() < STOPPED_MPS;
+        if !stopped && now.saturating_duration_since(since) < BRAKE_LIMIT {
+            return None;
+        }
+        let moves = match then {
+            After::Sweep => {
+                self.step = Step::Sweeping;
+                self.sweep(view.pose)
+            }
+            After::Align => {
+                self.step = Step::Aligning;
+                self.align(view.pose, track)
+            }
+        };
+        self.outstanding += moves.len();
+        Some(Action::Moves(moves))
+    }
+
+    /// Face across the tape, then out to one side, back through to the other, and back.
+    fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
+        let across = Vector2::new(-self.tape.y, self.tape.x);
+        let reach = self.reach_m as f32;
+        vec![
+            turn_to(pose.theta, across.y.atan2(across.x)),
+            straight(reach),
+            straight(-2.0 * reach),
+            straight(reach),
+        ]
+    }
+
+    /// Drive the centre onto the tape the model now places the robot beside, face along it the
+    /// way the robot drove, and creep forward so the sensor runs along it.
+    fn align(&self, pose: Pose, track: &Track) -> Vec<MoveCommand> {
+        let centre = Point2::new(pose.x, pose.y);
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let Some(n) = track.nearest(centre) else {
+            return Vec::new();
+        };
+        let onto = heading.dot(&(n.point - centre)) as f32;
+        let before = Vector2::new(self.heading.cos(), self.heading.sin());
+        let along = if n.tangent.dot(&before) >= 0.0 {
+            n.tangent
+        } else {
+            -n.tangent
+        };
+        let mut moves = Vec::new();
+        if onto.abs() > 0.002 {
+            moves.push(straight(onto));
+        }
+        moves.push(turn_to(pose.theta, along.y.atan2(along.x)));
+        moves.push(straight(CREEP_M));
+        moves
+    }
+}
+
+fn straight(distance_m: f32) -> MoveCommand {
+    MoveCommand::Straight {
+        distance_m,
+        speed_mps: SEARCH_MPS,
+    }
+}
+
+fn turn_to(from: f64, to: f64) -> MoveCommand {
+    let a =
+        (to - from + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    MoveCommand::Rotate {
+        angle_deg: a.to_degrees() as f32,
+        speed_mps: TURN_MPS,
+    }
+}
