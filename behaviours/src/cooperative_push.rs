@@ -34,8 +34,10 @@ const HALF_LEN: f64 = 0.024;
 /// Space between a waiting pusher's front and the box, metres.
 const LANE_GAP: f64 = 0.012;
 /// The approach lane runs this far below the slots: a robot turning there clears one waiting in
-/// the next slot (its corners sweep a 29 mm circle).
-const APPROACH_BELOW: f64 = 0.05;
+/// the next slot (its corners sweep a 29 mm circle), and one passing leaves 15 mm between their
+/// bodies, room for the safety check's margins and for twice the uncertainty of each pose; any
+/// lower and a turn in the lane would come too near the arena's edge.
+const APPROACH_BELOW: f64 = 0.055;
 /// Pushers stand this far either side of the box's centre line: 16 mm between their bodies, so
 /// that the second can turn into its slot beside the first with room for a few millimetres of
 /// pose error, while each still covers 12 mm of a 40 mm box.

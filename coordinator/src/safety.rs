@@ -33,7 +33,11 @@ impl Default for Safety {
 }
 
 /// Each footprint grows by this many standard deviations of its robot's position uncertainty.
-pub const UNCERTAINTY_SIGMAS: f64 = 2.0;
+pub const UNCERTAINTY_SIGMAS: f64 = 1.0;
+
+/// Robots already within each other's widened footprints may close in by at most this along a
+/// path (two pushers backing off side by side are not quite parallel).
+const ALONGSIDE_M: f64 = 0.002;
 
 /// Largest step between checked poses along a path.
 const STEP_M: f64 = 0.005;
@@ -98,17 +102,41 @@ impl Safety {
                 let their_margin =
                     self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
                 let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
-                // A robot already overlapping another (pushed together, or a bad estimate) may
-                // still move apart: only paths that enter an overlap are refused.
+                // Robots already inside each other's widened footprints (pushing side by side,
+                // or a bad estimate) may still move apart or alongside: such a path is refused
+                // only where it closes in on the other by more than `ALONGSIDE_M`, or deepens an
+                // overlap of the footprints with the plain margin.
                 let overlapping_now = mine(path[0]).overlaps(&fq);
+                let plain = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
+                let fq_plain = plain(q);
+                let start_depth = plain(path[0]).depth(&fq_plain);
                 if let Some(p) = path.iter().skip(1).find(|p| {
-                    let f = mine(**p);
-                    f.overlaps(&fq) && (!overlapping_now || f.depth(&fq) > mine(path[0]).depth(&fq))
+                    if overlapping_now {
+                        let d = plain(**p).depth(&fq_plain);
+                        d > start_depth + ALONGSIDE_M || (d > 0.0 && d > start_depth)
+                    } else {
+                        mine(**p).overlaps(&fq)
+                    }
                 }) {
-                    return Err(format!(
-                        "robot {} would touch robot {} at ({:.3}, {:.3})",
-                        me.id, other.id, p.x, p.y
-                    ));
+                    let widened = UNCERTAINTY_SIGMAS
+                        * (me.uncertainty.position_m + other.uncertainty.position_m);
+                    return Err(if widened >= 0.0005 {
+                        format!(
+                            "robot {} would touch robot {} at ({:.3}, {:.3}) (their footprints \
+                             widened by {:.1} and {:.1} mm for the uncertainty of their poses)",
+                            me.id,
+                            other.id,
+                            p.x,
+                            p.y,
+                            UNCERTAINTY_SIGMAS * me.uncertainty.position_m * 1e3,
+                            UNCERTAINTY_SIGMAS * other.uncertainty.position_m * 1e3
+                        )
+                    } else {
+                        format!(
+                            "robot {} would touch robot {} at ({:.3}, {:.3})",
+                            me.id, other.id, p.x, p.y
+                        )
+                    });
                 }
             }
         }
