@@ -253,3 +253,90 @@ fn turn_to(from: f64, to: f64) -> MoveCommand {
         speed_mps: TURN_MPS,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use simulator::world::presets;
+
+    fn view(x: f64, y: f64, theta: f64) -> RobotView {
+        RobotView {
+            id: 1,
+            pose: Pose { x, y, theta },
+            uncertainty: behaviours::PoseUncertainty {
+                position_m: 0.02,
+                heading_rad: 0.05,
+            },
+            ..Default::default()
+        }
+    }
+
+    /// Lost 25 mm beside a tape along x: stop, sweep across it as far as three sigmas, and once
+    /// the tape fixes the position, onto it and facing the way the robot drove.
+    #[test]
+    fn the_routine_sweeps_across_the_tape_then_puts_the_robot_back_on_it() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, first) = Relocaliser::start(&lost, &world.track, now);
+        assert_eq!(first, Action::Stop);
+        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
+            panic!("a stopped robot sweeps at once");
+        };
+        let MoveCommand::Rotate { angle_deg, .. } = sweep[0] else {
+            panic!("{sweep:?}");
+        };
+        // The tape runs along x: face across it (±90°) from a heading of 0.1 rad.
+        assert!(((angle_deg.abs() - 90.0) as f64 - 0.1f64.to_degrees()).abs() < 12.0);
+        let reaches: Vec<f32> = sweep[1..]
+            .iter()
+            .map(|m| match m {
+                MoveCommand::Straight { distance_m, .. } => *distance_m,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(reaches, vec![0.06, -0.12, 0.06]);
+        // The tape is found: stop, then align from the fixed pose (facing +y, centre 16 mm
+        // below the tape at y = 0.2).
+        assert_eq!(r.fixed(now), Action::Stop);
+        let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
+        let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
+            panic!("aligning");
+        };
+        let MoveCommand::Straight { distance_m, .. } = align[0] else {
+            panic!("{align:?}");
+        };
+        assert!((distance_m - 0.016).abs() < 1e-4, "{distance_m}");
+        let MoveCommand::Rotate { angle_deg, .. } = align[1] else {
+            panic!("{align:?}");
+        };
+        assert!(
+            (angle_deg + 90.0).abs() < 1e-3,
+            "faces +x as it drove: {angle_deg}"
+        );
+        assert!(!r.aligned());
+        for _ in &align {
+            r.move_finished(true);
+        }
+        assert!(r.aligned() && !r.gave_up());
+    }
+
+    /// A sweep that ends without a tape gives up: the robot stays where it stopped.
+    #[test]
+    fn a_sweep_that_finds_nothing_gives_up() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.3, 0.0);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, now);
+        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
+            panic!("sweep");
+        };
+        // The stop's aborted moves do not count.
+        r.move_finished(false);
+        for _ in &sweep {
+            assert!(!r.gave_up());
+            r.move_finished(true);
+        }
+        assert!(r.gave_up());
+    }
+}

@@ -885,6 +885,257 @@ mod tests {
         assert!(est_err < 0.005, "estimate {est_err} vs odometry {odo_err}");
     }
 
+    /// What the line sensor of a robot at `truth` reports over `track`: eight spots 3 mm apart
+    /// across the heading, each dark over tape; the tape's offset to the right in µm is the
+    /// centroid of the dark ones, and the line is lost when none is.
+    fn sense(track: &Track, truth: Pose) -> protocol::RobotState {
+        let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
+        let right = Vector2::new(heading.y, -heading.x);
+        let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+        let dark: Vec<f64> = (0..8)
+            .map(|k| (k as f64 - 3.5) * 0.003)
+            .filter(|&off| {
+                track
+                    .nearest(sensor + right * off)
+                    .is_some_and(|n| n.distance_m < 0.003)
+            })
+            .collect();
+        let mut state = protocol::RobotState::default();
+        if dark.is_empty() {
+            state.line.flags = LINE_LOST;
+        } else {
+            let centroid = dark.iter().sum::<f64>() / dark.len() as f64;
+            state.line.position_um = (centroid * 1e6) as i16;
+        }
+        state
+    }
+
+    /// A unicycle step: `ds` along an arc turning `dth`.
+    fn step(p: Pose, ds: f64, dth: f64) -> Pose {
+        let mid = p.theta + dth / 2.0;
+        Pose {
+            x: p.x + ds * mid.cos(),
+            y: p.y + ds * mid.sin(),
+            theta: p.theta + dth,
+        }
+    }
+
+    struct Drive {
+        model: WorldModel,
+        track: Arc<Track>,
+        truth: Pose,
+        odometry: Pose,
+        at: tokio::time::Instant,
+        /// Each transition and the true pose when it came.
+        transitions: Vec<Transition>,
+        transition_at: Vec<Pose>,
+    }
+
+    impl Drive {
+        fn new(track: Track, start: Pose) -> Self {
+            let track = Arc::new(track);
+            let model = WorldModel::new(Arc::clone(&track));
+            model.add(1);
+            let mut d = Self {
+                model,
+                track,
+                truth: start,
+                odometry: start,
+                at: tokio::time::Instant::now(),
+                transitions: Vec::new(),
+                transition_at: Vec::new(),
+            };
+            d.report();
+            d
+        }
+
+        /// Moves the robot by `ds` and `dth`; its odometry reads `ds·(1 + scale)` and turns
+        /// `drift` radians per metre more than it did.
+        fn go(&mut self, ds: f64, dth: f64, scale: f64, drift: f64) {
+            self.truth = step(self.truth, ds, dth);
+            self.odometry = step(self.odometry, ds * (1.0 + scale), dth + ds.abs() * drift);
+            self.report();
+        }
+
+        fn report(&mut self) {
+            self.at += std::time::Duration::from_millis(20);
+            let u = StateUpdated {
+                robot_id: 1,
+                at: self.at,
+                state: sense(&self.track, self.truth),
+                reduced: false,
+                pose: self.odometry,
+            };
+            if let Some(t) = self.model.apply(&u) {
+                self.transitions.push(t);
+                self.transition_at.push(self.truth);
+            }
+        }
+
+        fn view(&self) -> RobotView {
+            self.model.views()[0].clone()
+        }
+
+        fn error_m(&self) -> f64 {
+            let p = self.view().pose;
+            (p.x - self.truth.x).hypot(p.y - self.truth.y)
+        }
+
+        /// Drives straight to `(x, y)` at 0.1 m/s in 2 mm steps, first turning on the spot
+        /// towards it.
+        fn drive_to(&mut self, x: f64, y: f64, scale: f64, drift: f64) -> f64 {
+            let want = (y - self.truth.y).atan2(x - self.truth.x);
+            let turn = wrap(want - self.truth.theta);
+            let n = (turn.abs() / 0.05).ceil() as usize;
+            for _ in 0..n {
+                self.go(0.0, turn / n as f64, scale, drift);
+            }
+            let d = (x - self.truth.x).hypot(y - self.truth.y);
+            let n = (d / 0.002).ceil() as usize;
+            let mut worst = 0.0f64;
+            for _ in 0..n {
+                self.go(d / n as f64, 0.0, scale, drift);
+                worst = worst.max(self.error_m());
+            }
+            worst
+        }
+    }
+
+    /// A robot driving moves along a grid's tapes (not following them), its odometry 0.5 % long
+    /// and drifting 3° per metre: every turn onto a crossing tape takes out what the last one
+    /// could not see, and the model stays within millimetres while the odometry goes astray.
+    #[test]
+    fn a_robot_driving_moves_along_tapes_is_localised_by_them() {
+        let world = presets::grid(4, 4, 1);
+        let node = |c: usize, r: usize| {
+            let id = format!("c{c}r{r}");
+            world.track.nodes()[world.track.node_index(&id).unwrap()].position
+        };
+        let start = node(0, 0);
+        let mut d = Drive::new(
+            world.track.clone(),
+            Pose {
+                x: start.x,
+                y: start.y,
+                theta: 0.0,
+            },
+        );
+        let (scale, drift) = (0.005, 3f64.to_radians());
+        let route = [
+            (3, 0),
+            (3, 3),
+            (0, 3),
+            (0, 0),
+            (2, 0),
+            (2, 2),
+            (1, 2),
+            (1, 0),
+        ];
+        let mut worst = 0.0f64;
+        for lap in 0..3 {
+            for &(c, r) in &route {
+                let p = node(c, r);
+                let w = d.drive_to(p.x, p.y, scale, drift);
+                if lap > 0 {
+                    worst = worst.max(w);
+                }
+            }
+        }
+        let v = d.view();
+        let odo_err = (v.odometry.x - d.truth.x).hypot(v.odometry.y - d.truth.y);
+        assert!(odo_err > 0.05, "the drift is real: {odo_err}");
+        assert!(worst < 0.006, "model error {worst}");
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
+        let sigma = v.uncertainty.position_m;
+        assert!(sigma > 0.0005 && sigma < 0.01, "uncertainty {sigma}");
+        assert_eq!(v.localisation, Localisation::Tracking);
+    }
+
+    /// Off the tape the uncertainty grows with the distance driven; back on a tape it shrinks
+    /// across the tape.
+    #[test]
+    fn uncertainty_grows_off_the_tape_and_shrinks_on_it() {
+        let world = presets::grid(4, 4, 1);
+        let mut d = Drive::new(
+            world.track.clone(),
+            Pose {
+                x: 0.3,
+                y: 0.3,
+                theta: 0.0,
+            },
+        );
+        let s0 = d.view().uncertainty.position_m;
+        // Round a square inside one cell five times, never over tape.
+        for _ in 0..5 {
+            for (x, y) in [(0.35, 0.3), (0.35, 0.35), (0.3, 0.35), (0.3, 0.3)] {
+                d.drive_to(x, y, 0.0, 0.0);
+            }
+        }
+        let s1 = d.view().uncertainty.position_m;
+        let h1 = d.view().uncertainty.heading_rad;
+        assert!(s1 > s0 * 2.0, "{s0} -> {s1}");
+        assert!(h1 > START_SIGMA_RAD, "{h1}");
+        // Then onto the tape at y = 0.4 and along it.
+        d.drive_to(0.3, 0.4, 0.0, 0.0);
+        d.drive_to(0.39, 0.4, 0.0, 0.0);
+        let normal = Vector2::new(0.0, 1.0);
+        let est = d.model.estimates.get(&1).unwrap().cov;
+        assert!(
+            sigma_along(&est, normal) < 0.002,
+            "{}",
+            sigma_along(&est, normal)
+        );
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
+    }
+
+    /// Kicked 30 mm sideways off the tape it drives along, a robot no longer sees the tape where
+    /// the model puts it: it is lost within a few centimetres. Creeping across, its sensor finds
+    /// the tape, which fixes the position across it; driving along it again, it is tracked.
+    #[test]
+    fn a_kicked_robot_is_found_lost_and_relocated_by_the_tape() {
+        let world = presets::grid(4, 4, 1);
+        let mut d = Drive::new(
+            world.track.clone(),
+            Pose {
+                x: 0.2,
+                y: 0.2,
+                theta: 0.0,
+            },
+        );
+        d.drive_to(0.27, 0.2, 0.0, 0.0);
+        d.truth.y += 0.03;
+        let kicked_at = d.truth.x;
+        d.drive_to(0.35, 0.23, 0.0, 0.0);
+        let lost_after = match d.transitions.first() {
+            Some(Transition::Lost(why)) => {
+                assert!(why.contains("no tape"), "{why}");
+                d.transition_at[0].x - kicked_at
+            }
+            other => panic!("{other:?}"),
+        };
+        assert!(lost_after < 0.06, "lost only after {lost_after} m");
+        assert_eq!(d.view().localisation, Localisation::Lost);
+        assert!(d.view().uncertainty.position_m >= LOST_FLOOR_M * 0.99);
+        // The search: face across the tape and creep towards it.
+        d.drive_to(d.truth.x, 0.15, 0.0, 0.0);
+        assert!(
+            d.transitions.contains(&Transition::Fixed),
+            "{:?}",
+            d.transitions
+        );
+        let across = (d.view().pose.y - d.truth.y).abs();
+        assert!(across < 0.003, "across the tape {across}");
+        // Onto the tape and along it.
+        d.drive_to(d.truth.x, 0.2, 0.0, 0.0);
+        d.drive_to(d.truth.x + 0.05, 0.2, 0.0, 0.0);
+        assert_eq!(d.transitions.last(), Some(&Transition::Found));
+        assert_eq!(d.view().localisation, Localisation::Tracking);
+        assert!(d.error_m() < 0.003, "{}", d.error_m());
+        let stats = d.model.localisation_stats(d.at);
+        assert_eq!(stats[0].1.lost_episodes, 1);
+        assert!(stats[0].1.lost_time > std::time::Duration::ZERO);
+    }
+
     struct TrackLoopLen;
     impl TrackLoopLen {
         fn oval() -> f64 {
