@@ -287,6 +287,11 @@ pub fn view_json(v: &RobotView, updates: u64) -> Value {
         "odometry": {"x": v.odometry.x, "y": v.odometry.y, "theta": v.odometry.theta},
         "pending_moves": v.pending_moves,
         "on_track": v.on_track.map(|(e, o, d)| json!([e, o, d])),
+        "uncertainty": {"position_m": v.uncertainty.position_m, "heading_rad": v.uncertainty.heading_rad},
+        "localisation": match v.localisation {
+            behaviours::Localisation::Tracking => "tracking",
+            behaviours::Localisation::Lost => "lost",
+        },
         "state": layout_json(&v.state),
     })
 }

@@ -102,6 +102,8 @@ impl Topic {
                         "odometry": {"type": "object", "properties": {"x": num, "y": num, "theta": num}},
                         "pending_moves": {"type": "integer"},
                         "on_track": {"type": ["array", "null"]},
+                        "uncertainty": {"type": "object", "description": "1σ of the pose estimate", "properties": {"position_m": num, "heading_rad": num}},
+                        "localisation": {"type": "string", "enum": ["tracking", "lost"]},
                         "state": {"type": "object"}}}},
                     "encounters": {"type": "array"}}}),
             ),
