@@ -21,7 +21,7 @@ use tokio::sync::oneshot;
 
 use crate::instruments::{Hooks, Run};
 use crate::observer::{Instruments, Observer};
-use crate::report::{ObstacleReport, Report, RobotReport};
+use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
 use crate::safety::Safety;
 use crate::supervisor::{Abort, Supervisor};
 
@@ -353,12 +353,11 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             .as_ref()
             .map(|t| obstacle_reports(&world, t))
             .unwrap_or_default(),
-        robot_collisions: truth.as_ref().map(|t| t.robot_collisions),
-        collision_log: truth
-            .as_ref()
-            .map(|t| t.collision_log.clone())
-            .unwrap_or_default(),
-        wall_contacts: truth.as_ref().map(|t| t.wall_contacts),
+        ground_truth: truth.as_ref().map(|t| GroundTruth {
+            robot_contacts: t.robot_collisions,
+            wall_contacts: t.wall_contacts,
+            collision_log: t.collision_log.clone(),
+        }),
         held_intents: outcome
             .held
             .iter()

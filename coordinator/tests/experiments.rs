@@ -33,7 +33,7 @@ fn run(plan: Plan, registry: &Registry) -> Report {
 #[test]
 fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
     let report = run(plan("square_walk", 3), &Registry::builtin());
-    assert!(report.verdict.success, "{report}");
+    assert!(report.success(), "{report}");
     let world = coordinator::load_world("open").unwrap();
     for r in &report.robots {
         let start = world.robots.iter().find(|s| s.id == r.id).unwrap();
@@ -53,7 +53,7 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
             r.distance_m
         );
     }
-    assert_eq!(report.robot_collisions, Some(0));
+    assert_eq!(report.robot_collisions(), Some(0));
 }
 
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
@@ -153,7 +153,7 @@ fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
     let report = run(p, &Registry::builtin());
     let cut = &report.robots[0];
     assert!(cut.link.losses >= 1 && cut.link.reconnects >= 1, "{report}");
-    assert!(report.verdict.success, "{report}");
+    assert!(report.success(), "{report}");
     let world = coordinator::load_world("open").unwrap();
     let start = world.robots[0].position;
     let truth = cut.truth.unwrap();

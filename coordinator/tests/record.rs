@@ -100,7 +100,7 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     assert_eq!(verdict["kind"], "verdict");
     assert_eq!(
         verdict["success"],
-        serde_json::json!(recorded.report.verdict.success)
+        serde_json::json!(recorded.report.success())
     );
 
     // A finished recording recovers to the same messages, chunk for chunk.

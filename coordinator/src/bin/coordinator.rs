@@ -271,7 +271,7 @@ fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     finish(&run, registry, plot)?;
-    Ok(report.verdict.success)
+    Ok(report.success())
 }
 
 /// The world a plan runs in, for the plot.
