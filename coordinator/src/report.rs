@@ -10,6 +10,8 @@ use std::fmt;
 use std::time::Duration;
 
 use behaviours::Verdict;
+
+use crate::world_model::LocalisationStats;
 use robot_actor::actor::LinkStats;
 use robot_actor::Pose;
 use serde::Serialize;
@@ -35,6 +37,14 @@ pub struct RobotReport {
     /// Measured wheel speeds (left, right) in the last state the robot reflected, m/s: zero
     /// once the experiment has stopped it.
     pub wheels_mps: (f64, f64),
+    /// The world model's worst position error against ground truth over the run, sampled every
+    /// 100 ms of experiment time, metres (simulated robots only).
+    pub worst_model_error_m: Option<f64>,
+    /// The world model's worst heading error against ground truth over the run, radians
+    /// (simulated robots only).
+    pub worst_model_heading_error_rad: Option<f64>,
+    /// How the robot's localisation went: lost episodes, time lost, worst uncertainty.
+    pub localisation: LocalisationStats,
 }
 
 impl RobotReport {
@@ -87,6 +97,8 @@ pub struct GroundTruth {
     pub wall_contacts: usize,
     /// When each robot–robot contact began (simulated seconds) and between which robots.
     pub collision_log: Vec<(f64, u16, u16)>,
+    /// How many times the world model was checked against the true poses.
+    pub model_samples: usize,
 }
 
 impl GroundTruth {
@@ -151,6 +163,11 @@ struct JsonRobot {
     off_tape_mm: Option<f64>,
     distance_m: Option<f64>,
     final_wheels_mps: [f64; 2],
+    worst_model_error_mm: Option<f64>,
+    worst_model_heading_error_deg: Option<f64>,
+    lost_episodes: u32,
+    lost_s: f64,
+    worst_uncertainty_mm: f64,
     packets_in: u64,
     packets_out: u64,
     checksum_errors: u64,
@@ -174,6 +191,12 @@ struct JsonReport<'a> {
     obstacles: &'a [ObstacleReport],
     robot_collisions: Option<usize>,
     wall_contacts: Option<usize>,
+    worst_model_error_mm: Option<f64>,
+    worst_model_heading_error_deg: Option<f64>,
+    model_samples: Option<usize>,
+    lost_episodes: u32,
+    lost_s: f64,
+    worst_uncertainty_mm: f64,
     held_intents: &'a [String],
     encounters: usize,
     restarts: u32,
@@ -204,6 +227,45 @@ impl Report {
     /// Robot–wall contacts (ground truth; simulated robots only).
     pub fn wall_contacts(&self) -> Option<usize> {
         self.ground_truth.as_ref().map(|g| g.wall_contacts)
+    }
+
+    /// The world model's worst position error against ground truth over every robot and the
+    /// whole run, metres (simulated robots only).
+    pub fn worst_model_error_m(&self) -> Option<f64> {
+        self.robots
+            .iter()
+            .filter_map(|r| r.worst_model_error_m)
+            .reduce(f64::max)
+    }
+
+    /// The world model's worst heading error against ground truth over every robot and the whole
+    /// run, radians (simulated robots only).
+    pub fn worst_model_heading_error_rad(&self) -> Option<f64> {
+        self.robots
+            .iter()
+            .filter_map(|r| r.worst_model_heading_error_rad)
+            .reduce(f64::max)
+    }
+
+    /// Lost episodes summed over the robots.
+    pub fn lost_episodes(&self) -> u32 {
+        self.robots
+            .iter()
+            .map(|r| r.localisation.lost_episodes)
+            .sum()
+    }
+
+    /// Time lost summed over the robots.
+    pub fn lost_time(&self) -> Duration {
+        self.robots.iter().map(|r| r.localisation.lost_time).sum()
+    }
+
+    /// The largest position uncertainty the model gave any robot, metres.
+    pub fn worst_uncertainty_m(&self) -> f64 {
+        self.robots
+            .iter()
+            .map(|r| r.localisation.worst_uncertainty_m)
+            .fold(0.0, f64::max)
     }
 
     /// The report as JSON.
@@ -238,6 +300,13 @@ impl Report {
                     off_tape_mm: r.off_tape_m.map(|e| e * 1e3),
                     distance_m: r.distance_m,
                     final_wheels_mps: [r.wheels_mps.0, r.wheels_mps.1],
+                    worst_model_error_mm: r.worst_model_error_m.map(|e| e * 1e3),
+                    worst_model_heading_error_deg: r
+                        .worst_model_heading_error_rad
+                        .map(f64::to_degrees),
+                    lost_episodes: r.localisation.lost_episodes,
+                    lost_s: r.localisation.lost_time.as_secs_f64(),
+                    worst_uncertainty_mm: r.localisation.worst_uncertainty_m * 1e3,
                     packets_in: r.link.packets_in,
                     packets_out: r.link.packets_out,
                     checksum_errors: r.link.checksum_errors,
@@ -250,6 +319,14 @@ impl Report {
             obstacles: &self.obstacles,
             robot_collisions: self.robot_collisions(),
             wall_contacts: self.wall_contacts(),
+            worst_model_error_mm: self.worst_model_error_m().map(|e| e * 1e3),
+            worst_model_heading_error_deg: self
+                .worst_model_heading_error_rad()
+                .map(f64::to_degrees),
+            model_samples: self.ground_truth.as_ref().map(|g| g.model_samples),
+            lost_episodes: self.lost_episodes(),
+            lost_s: self.lost_time().as_secs_f64(),
+            worst_uncertainty_mm: self.worst_uncertainty_m() * 1e3,
             held_intents: &self.held_intents,
             encounters: self.encounters,
             restarts: self.restarts,
@@ -277,7 +354,7 @@ impl fmt::Display for Report {
         }
         writeln!(
             f,
-            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  driven [m]  rtt [ms]  in/out packets  losses"
+            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  worst model err [mm, deg]  lost [n, s]  worst σ [mm]  driven [m]  rtt [ms]  in/out packets  losses"
         )?;
         for r in &self.robots {
             let truth = r.truth.map_or("        -        ".to_string(), |t| {
@@ -288,7 +365,7 @@ impl fmt::Display for Report {
             };
             writeln!(
                 f,
-                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {} {}  {}  {}  {:>7}/{:<7} {:>6}",
+                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {} {}  {} {}  {:>3} {:7.2}  {:12.1}  {}  {}  {:>7}/{:<7} {:>6}",
                 r.id,
                 r.odometry.x * 1e3,
                 r.odometry.y * 1e3,
@@ -296,6 +373,11 @@ impl fmt::Display for Report {
                 num(r.heading_error_deg(), 17, 2),
                 num(r.estimate_error_m().map(|e| e * 1e3), 10, 1),
                 num(r.estimate_heading_error_deg(), 9, 2),
+                num(r.worst_model_error_m.map(|e| e * 1e3), 15, 1),
+                num(r.worst_model_heading_error_rad.map(f64::to_degrees), 9, 2),
+                r.localisation.lost_episodes,
+                r.localisation.lost_time.as_secs_f64(),
+                r.localisation.worst_uncertainty_m * 1e3,
                 num(r.distance_m, 10, 3),
                 num(r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3), 8, 1),
                 r.link.packets_in,
@@ -322,7 +404,26 @@ impl fmt::Display for Report {
             for (t, a, b) in g.collision_log.iter().take(5) {
                 writeln!(f, "    at {t:.2} s: robots {a} and {b}")?;
             }
+            if let (Some(e), Some(h)) = (
+                self.worst_model_error_m(),
+                self.worst_model_heading_error_rad(),
+            ) {
+                writeln!(
+                    f,
+                    "  ground truth: worst model error {:.1} mm, {:.2}° (checked {} times)",
+                    e * 1e3,
+                    h.to_degrees(),
+                    g.model_samples
+                )?;
+            }
         }
+        writeln!(
+            f,
+            "  localisation: {} lost episodes, {:.2} s lost in all; worst uncertainty {:.1} mm",
+            self.lost_episodes(),
+            self.lost_time().as_secs_f64(),
+            self.worst_uncertainty_m() * 1e3
+        )?;
         writeln!(
             f,
             "  encounters: {}; behaviour restarts: {}",
@@ -361,6 +462,7 @@ mod tests {
                 robot_contacts: contacts.0,
                 wall_contacts: contacts.1,
                 collision_log: vec![(1.5, 1, 2); contacts.0],
+                model_samples: 100,
             }),
             robots: Vec::new(),
             obstacles: Vec::new(),

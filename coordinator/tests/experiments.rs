@@ -54,6 +54,22 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
         );
     }
     assert_eq!(report.robot_collisions(), Some(0));
+    // The model was checked against the truth every 100 ms of the walk, and stayed close to it.
+    let samples = report.ground_truth.as_ref().unwrap().model_samples;
+    let expected = (report.experiment_time.as_secs_f64() / 0.1) as usize;
+    assert!(
+        samples + 2 >= expected && samples <= expected + 2,
+        "{samples} samples in {:?}",
+        report.experiment_time
+    );
+    for r in &report.robots {
+        let worst = r.worst_model_error_m.expect("sampled");
+        assert!(worst > 0.0 && worst < 0.020, "robot {}: {report}", r.id);
+        // The model's pose is as old as the robot's last report: turning on the spot at several
+        // hundred degrees a second, that age alone is worth tens of degrees.
+        let heading = r.worst_model_heading_error_rad.unwrap();
+        assert!(heading > 0.0 && heading < 30f64.to_radians(), "{report}");
+    }
 }
 
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.

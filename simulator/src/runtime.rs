@@ -36,6 +36,7 @@ enum Command {
     Disconnect(usize, Option<oneshot::Sender<()>>),
     SetLinkUp(usize, bool),
     Truth(oneshot::Sender<Truth>),
+    Poses(oneshot::Sender<Poses>),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
@@ -59,6 +60,16 @@ pub struct Truth {
     pub collision_log: Vec<(f64, u16, u16)>,
     /// Robot–wall contacts so far.
     pub wall_contacts: usize,
+}
+
+/// The robots' true poses at one instant: the part of [`Truth`] cheap enough to ask for many times
+/// a second.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Poses {
+    /// Simulated time.
+    pub now: Duration,
+    /// Robot ids and true poses, in world order.
+    pub robots: Vec<(u16, Pose)>,
 }
 
 /// What a host's side of one link has dropped for a full buffer, as (packets, bytes) per
@@ -240,6 +251,14 @@ impl SimHandle {
         rx.await.ok()
     }
 
+    /// The robots' true poses now, without the rest of [`Truth`] (contact logs, obstacles);
+    /// `None` once the simulation has stopped.
+    pub async fn poses(&self) -> Option<Poses> {
+        let (tx, rx) = oneshot::channel();
+        self.commands.send(Command::Poses(tx)).ok()?;
+        rx.await.ok()
+    }
+
     /// Runs `f` on the simulation between two steps and returns its result: any ground truth a
     /// test needs, or a fault to inject. `None` once the simulation has stopped.
     pub async fn inspect<T: Send + 'static>(
@@ -402,6 +421,12 @@ async fn step_loop(
                 Command::SetLinkUp(i, up) => sim.set_link_up(i, up),
                 Command::Truth(reply) => {
                     let _ = reply.send(truth(&sim));
+                }
+                Command::Poses(reply) => {
+                    let _ = reply.send(Poses {
+                        now: sim.now(),
+                        robots: sim.robots().iter().map(|r| (r.id(), r.pose())).collect(),
+                    });
                 }
                 Command::Inspect(job) => job(&mut sim),
                 Command::Stop => return sim,
