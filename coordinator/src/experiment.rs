@@ -60,6 +60,24 @@ pub struct Plan {
     /// Body faults of simulated robots, by robot id, present from the start (a robot that
     /// cannot move, or cannot measure that it does, to prove that verdicts need the work done).
     pub body_faults: Vec<(u16, BodyFault)>,
+    /// Kicks of simulated robots: bodies moved without their odometry knowing.
+    pub kicks: Vec<Kick>,
+}
+
+/// A kick: simulated robot `robot` (by id) is moved by (`dx_m`, `dy_m`) and turned by
+/// `dtheta_rad` at `at`, at once and without its firmware noticing, as if picked up and put down.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Kick {
+    /// Robot id.
+    pub robot: u16,
+    /// When, after the robots are connected.
+    pub at: Duration,
+    /// Displacement along x, metres.
+    pub dx_m: f64,
+    /// Displacement along y, metres.
+    pub dy_m: f64,
+    /// Turn, radians counter-clockwise.
+    pub dtheta_rad: f64,
 }
 
 /// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
@@ -147,6 +165,19 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         .map_err(|e| anyhow!(e))?;
     if !plan.body_faults.is_empty() && plan.transport != Transport::Sim {
         bail!("body faults can only be injected into simulated robots (transport sim)");
+    }
+    if !plan.kicks.is_empty() && plan.transport != Transport::Sim {
+        bail!("only simulated robots can be kicked (transport sim)");
+    }
+    let mut kicks = Vec::new();
+    for k in &plan.kicks {
+        let Some(index) = world.robots.iter().position(|r| r.id == k.robot) else {
+            bail!("kick of robot {}: no such robot in the world", k.robot);
+        };
+        if !(k.dx_m.is_finite() && k.dy_m.is_finite() && k.dtheta_rad.is_finite()) {
+            bail!("kick of robot {}: the displacement must be finite", k.robot);
+        }
+        kicks.push((index, *k));
     }
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
@@ -247,6 +278,25 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
                 h.set_link_up(fault.robot, false);
                 tokio::time::sleep(fault.duration).await;
                 h.set_link_up(fault.robot, true);
+            });
+        }
+        for (index, kick) in kicks {
+            let h = h.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(kick.at).await;
+                match h
+                    .displace(index, kick.dx_m, kick.dy_m, kick.dtheta_rad)
+                    .await
+                {
+                    Ok(p) => tracing::info!(
+                        robot = kick.robot,
+                        x = p.x,
+                        y = p.y,
+                        theta = p.theta,
+                        "kicked"
+                    ),
+                    Err(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
+                }
             });
         }
     }

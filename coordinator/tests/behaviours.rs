@@ -43,6 +43,7 @@ fn plan(
             .collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 

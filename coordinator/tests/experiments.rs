@@ -23,6 +23,7 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
         params: Default::default(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 
@@ -69,6 +70,30 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
         // hundred degrees a second, that age alone is worth tens of degrees.
         let heading = r.worst_model_heading_error_rad.unwrap();
         assert!(heading > 0.0 && heading < 30f64.to_radians(), "{report}");
+    }
+}
+
+#[test]
+fn a_kicked_robot_is_where_its_model_is_not() {
+    let mut p = plan("square_walk", 3);
+    p.kicks.push(coordinator::Kick {
+        robot: 2,
+        at: Duration::from_secs(1),
+        dx_m: 0.0,
+        dy_m: 0.03,
+        dtheta_rad: 0.0,
+    });
+    let report = run(p, &Registry::builtin());
+    for r in &report.robots {
+        let worst = r.worst_model_error_m.unwrap();
+        if r.id == 2 {
+            // Nothing on an open floor tells the model: its error is the kick, to the end.
+            assert!(worst > 0.025, "{report}");
+            assert!(r.estimate_error_m().unwrap() > 0.025, "{report}");
+            assert!(r.odometry_error_m().unwrap() > 0.025, "{report}");
+        } else {
+            assert!(worst < 0.020, "{report}");
+        }
     }
 }
 

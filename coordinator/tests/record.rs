@@ -28,6 +28,7 @@ fn plan(behaviour: &str, transport: Transport) -> Plan {
         params: Default::default(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 

@@ -37,6 +37,7 @@ enum Command {
     SetLinkUp(usize, bool),
     Truth(oneshot::Sender<Truth>),
     Poses(oneshot::Sender<Poses>),
+    Displace(usize, [f64; 3], oneshot::Sender<Result<Pose, String>>),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
@@ -259,6 +260,26 @@ impl SimHandle {
         rx.await.ok()
     }
 
+    /// Kicks robot `index` by (`dx`, `dy`) metres and `dtheta` radians between two steps (see
+    /// [`Simulation::displace`]) and returns its new true pose.
+    ///
+    /// # Errors
+    /// There is no such robot, the displacement is not finite, or the simulation has stopped.
+    pub async fn displace(
+        &self,
+        index: usize,
+        dx: f64,
+        dy: f64,
+        dtheta: f64,
+    ) -> Result<Pose, String> {
+        let (tx, rx) = oneshot::channel();
+        let stopped = || "cannot displace a robot: the simulation has stopped".to_string();
+        self.commands
+            .send(Command::Displace(index, [dx, dy, dtheta], tx))
+            .map_err(|_| stopped())?;
+        rx.await.map_err(|_| stopped())?
+    }
+
     /// Runs `f` on the simulation between two steps and returns its result: any ground truth a
     /// test needs, or a fault to inject. `None` once the simulation has stopped.
     pub async fn inspect<T: Send + 'static>(
@@ -427,6 +448,9 @@ async fn step_loop(
                         now: sim.now(),
                         robots: sim.robots().iter().map(|r| (r.id(), r.pose())).collect(),
                     });
+                }
+                Command::Displace(i, [dx, dy, dtheta], reply) => {
+                    let _ = reply.send(sim.displace(i, dx, dy, dtheta));
                 }
                 Command::Inspect(job) => job(&mut sim),
                 Command::Stop => return sim,

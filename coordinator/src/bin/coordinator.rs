@@ -199,6 +199,7 @@ fn plan(args: &Args) -> Result<Plan> {
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     })
 }
 
@@ -363,6 +364,7 @@ fn replay_file(
         params: info.params.clone(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     };
     let plot = plot.map(|p| (p.to_path_buf(), plan.clone()));
     let instruments = Instruments {
