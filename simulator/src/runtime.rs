@@ -38,6 +38,7 @@ enum Command {
     Truth(oneshot::Sender<Truth>),
     Poses(oneshot::Sender<Poses>),
     Displace(usize, [f64; 3], oneshot::Sender<Result<Pose, String>>),
+    DisplaceAt(Duration, usize, [f64; 3]),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
@@ -280,6 +281,14 @@ impl SimHandle {
         rx.await.map_err(|_| stopped())?
     }
 
+    /// Kicks robot `index` as [`displace`](Self::displace) does, at simulated time `at` exactly
+    /// however fast the simulation runs (at once if that time has passed). The outcome is logged.
+    pub fn displace_at(&self, at: Duration, index: usize, dx: f64, dy: f64, dtheta: f64) {
+        let _ = self
+            .commands
+            .send(Command::DisplaceAt(at, index, [dx, dy, dtheta]));
+    }
+
     /// Runs `f` on the simulation between two steps and returns its result: any ground truth a
     /// test needs, or a fault to inject. `None` once the simulation has stopped.
     pub async fn inspect<T: Send + 'static>(
@@ -426,6 +435,7 @@ async fn step_loop(
     let dt = sim.dt();
     let wall_start = tokio::time::Instant::now();
     let sim_start = sim.now();
+    let mut kicks: Vec<(Duration, usize, [f64; 3])> = Vec::new();
     loop {
         while let Ok(c) = commands.try_recv() {
             match c {
@@ -452,10 +462,24 @@ async fn step_loop(
                 Command::Displace(i, [dx, dy, dtheta], reply) => {
                     let _ = reply.send(sim.displace(i, dx, dy, dtheta));
                 }
+                Command::DisplaceAt(at, i, by) => kicks.push((at, i, by)),
                 Command::Inspect(job) => job(&mut sim),
                 Command::Stop => return sim,
             }
         }
+        kicks.retain(|&(at, i, [dx, dy, dtheta])| {
+            if sim.now() < at {
+                return true;
+            }
+            match sim.displace(i, dx, dy, dtheta) {
+                Ok(p) => {
+                    let robot = sim.robots()[i].id();
+                    tracing::info!(robot, x = p.x, y = p.y, theta = p.theta, "kicked");
+                }
+                Err(e) => tracing::warn!("{e}"),
+            }
+            false
+        });
         for (i, buffer) in to_robot.iter().enumerate() {
             drain_host_buffer(&mut sim, i, buffer);
         }

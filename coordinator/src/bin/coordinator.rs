@@ -69,6 +69,10 @@ struct Args {
     /// Write the robots' trajectories over the track to this SVG file.
     #[arg(long, value_name = "FILE.svg")]
     plot: Option<PathBuf>,
+    /// Kick simulated robot ID at SECONDS of experiment time by DX,DY metres and DEG degrees
+    /// (repeatable): its body moves at once and its odometry never learns of it.
+    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
+    kick: Vec<simulator::cli::KickArg>,
     #[command(subcommand)]
     command: Option<Sub>,
 }
@@ -199,7 +203,17 @@ fn plan(args: &Args) -> Result<Plan> {
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
         body_faults: Vec::new(),
-        kicks: Vec::new(),
+        kicks: args
+            .kick
+            .iter()
+            .map(|k| coordinator::Kick {
+                robot: k.robot,
+                at: k.at,
+                dx_m: k.dx_m,
+                dy_m: k.dy_m,
+                dtheta_rad: k.dtheta_rad,
+            })
+            .collect(),
     })
 }
 
