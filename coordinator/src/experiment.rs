@@ -21,7 +21,7 @@ use tokio::sync::oneshot;
 
 use crate::instruments::{Hooks, Run};
 use crate::observer::{Instruments, Observer};
-use crate::report::{ObstacleReport, Report, RobotReport};
+use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
 use crate::safety::Safety;
 use crate::supervisor::{Abort, Supervisor};
 
@@ -60,6 +60,24 @@ pub struct Plan {
     /// Body faults of simulated robots, by robot id, present from the start (a robot that
     /// cannot move, or cannot measure that it does, to prove that verdicts need the work done).
     pub body_faults: Vec<(u16, BodyFault)>,
+    /// Kicks of simulated robots: bodies moved without their odometry knowing.
+    pub kicks: Vec<Kick>,
+}
+
+/// A kick: simulated robot `robot` (by id) is moved by (`dx_m`, `dy_m`) and turned by
+/// `dtheta_rad` at `at`, at once and without its firmware noticing, as if picked up and put down.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Kick {
+    /// Robot id.
+    pub robot: u16,
+    /// When, after the robots are connected.
+    pub at: Duration,
+    /// Displacement along x, metres.
+    pub dx_m: f64,
+    /// Displacement along y, metres.
+    pub dy_m: f64,
+    /// Turn, radians counter-clockwise.
+    pub dtheta_rad: f64,
 }
 
 /// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
@@ -148,6 +166,19 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     if !plan.body_faults.is_empty() && plan.transport != Transport::Sim {
         bail!("body faults can only be injected into simulated robots (transport sim)");
     }
+    if !plan.kicks.is_empty() && plan.transport != Transport::Sim {
+        bail!("only simulated robots can be kicked (transport sim)");
+    }
+    let mut kicks = Vec::new();
+    for k in &plan.kicks {
+        let Some(index) = world.robots.iter().position(|r| r.id == k.robot) else {
+            bail!("kick of robot {}: no such robot in the world", k.robot);
+        };
+        if !(k.dx_m.is_finite() && k.dy_m.is_finite() && k.dtheta_rad.is_finite()) {
+            bail!("kick of robot {}: the displacement must be finite", k.robot);
+        }
+        kicks.push((index, *k));
+    }
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
     let (discovered, origins, sim) = match &plan.transport {
@@ -234,31 +265,11 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     let model = supervisor.model();
     let supervisor = supervisor.start();
     hooks.serve_panel(&supervisor, &robots, &world).await?;
-    if let Some(h) = sim.clone() {
-        let model = model.clone();
-        if tracing::enabled!(target: "coordinator::truth", tracing::Level::DEBUG) {
-            // Model against ground truth once a second, for studying the estimator.
-            tokio::spawn(async move {
-                loop {
-                    tokio::time::sleep(Duration::from_secs(1)).await;
-                    let Some(t) = h.truth().await else { break };
-                    for (id, p) in &t.robots {
-                        if let Some(v) = model.robots().get(id) {
-                            tracing::debug!(
-                                target: "coordinator::truth",
-                                robot = id,
-                                t = t.now.as_secs_f64(),
-                                truth = ?(p.x, p.y, p.theta),
-                                model = ?(v.pose.x, v.pose.y, v.pose.theta),
-                                odometry = ?(v.odometry.x, v.odometry.y, v.odometry.theta),
-                                line_um = { v.state.line.position_um },
-                            );
-                        }
-                    }
-                }
-            });
-        }
-    }
+    // From here to the verdict the model is checked against the ground truth.
+    let (stop_sampling, stopped) = oneshot::channel();
+    let sampler = sim
+        .clone()
+        .map(|h| tokio::spawn(sample_model_errors(h, model.robots(), stopped)));
     if let Some(h) = &sim {
         for fault in plan.faults.iter().copied() {
             let h = h.clone();
@@ -267,6 +278,25 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
                 h.set_link_up(fault.robot, false);
                 tokio::time::sleep(fault.duration).await;
                 h.set_link_up(fault.robot, true);
+            });
+        }
+        for (index, kick) in kicks {
+            let h = h.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(kick.at).await;
+                match h
+                    .displace(index, kick.dx_m, kick.dy_m, kick.dtheta_rad)
+                    .await
+                {
+                    Ok(p) => tracing::info!(
+                        robot = kick.robot,
+                        x = p.x,
+                        y = p.y,
+                        theta = p.theta,
+                        "kicked"
+                    ),
+                    Err(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
+                }
             });
         }
     }
@@ -290,6 +320,11 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         None => done_rx.await,
     }
     .context("supervisor stopped without a verdict")?;
+    let _ = stop_sampling.send(());
+    let model_errors = match sampler {
+        Some(task) => task.await.context("the model error sampler failed")?,
+        None => ModelErrors::default(),
+    };
     // A replay runs to the recording's end whatever its behaviour decides, so every recorded
     // snapshot can be checked.
     hooks.replay_to_end().await;
@@ -318,8 +353,17 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             );
             world.track.nearest(sensor).map(|n| n.distance_m)
         });
+        let worst = model_errors.worst.get(id);
         per_robot.push(RobotReport {
             id: *id,
+            worst_model_error_m: worst.map(|w| w.0),
+            worst_model_heading_error_rad: worst.map(|w| w.1),
+            localisation: outcome
+                .localisation
+                .iter()
+                .find(|(r, _)| r == id)
+                .map(|(_, l)| *l)
+                .unwrap_or_default(),
             odometry: snap.pose,
             estimate,
             off_tape_m,
@@ -353,12 +397,12 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             .as_ref()
             .map(|t| obstacle_reports(&world, t))
             .unwrap_or_default(),
-        robot_collisions: truth.as_ref().map(|t| t.robot_collisions),
-        collision_log: truth
-            .as_ref()
-            .map(|t| t.collision_log.clone())
-            .unwrap_or_default(),
-        wall_contacts: truth.as_ref().map(|t| t.wall_contacts),
+        ground_truth: truth.as_ref().map(|t| GroundTruth {
+            robot_contacts: t.robot_collisions,
+            wall_contacts: t.wall_contacts,
+            collision_log: t.collision_log.clone(),
+            model_samples: model_errors.samples,
+        }),
         held_intents: outcome
             .held
             .iter()
@@ -370,6 +414,77 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         wall_time: wall.elapsed(),
     };
     hooks.finish(report, &observer).await
+}
+
+/// How often, on the experiment's clock, the world model is checked against the ground truth.
+const MODEL_SAMPLE_PERIOD: Duration = Duration::from_millis(100);
+
+/// The world model's worst error against the ground truth over a run.
+#[derive(Clone, Debug, Default)]
+struct ModelErrors {
+    /// Per robot id: the worst position error (metres) and the worst heading error (radians).
+    worst: std::collections::BTreeMap<u16, (f64, f64)>,
+    /// How many times the model was checked.
+    samples: usize,
+}
+
+/// Compares every robot's model pose with its true pose each [`MODEL_SAMPLE_PERIOD`] until `stop`
+/// fires or the simulation ends. A robot counts from its first report on: before it the model has
+/// no pose of its own for it.
+async fn sample_model_errors(
+    h: runtime::SimHandle,
+    views: Arc<dashmap::DashMap<u16, behaviours::RobotView>>,
+    mut stop: oneshot::Receiver<()>,
+) -> ModelErrors {
+    let mut errors = ModelErrors::default();
+    let mut tick = tokio::time::interval(MODEL_SAMPLE_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    // Model against ground truth once a second in the log, for studying the estimator.
+    let log = tracing::enabled!(target: "coordinator::truth", tracing::Level::DEBUG);
+    let log_every = (Duration::from_secs(1).as_millis() / MODEL_SAMPLE_PERIOD.as_millis()) as usize;
+    loop {
+        tokio::select! {
+            biased;
+            _ = &mut stop => break,
+            _ = tick.tick() => {}
+        }
+        let Some(truth) = h.poses().await else { break };
+        errors.samples += 1;
+        for (id, p) in &truth.robots {
+            let Some(v) = views.get(id) else { continue };
+            if !v.connected && !errors.worst.contains_key(id) {
+                continue;
+            }
+            let position = (p.x - v.pose.x).hypot(p.y - v.pose.y);
+            let heading = wrap_rad(p.theta - v.pose.theta).abs();
+            let worst = errors.worst.entry(*id).or_insert((0.0, 0.0));
+            worst.0 = worst.0.max(position);
+            worst.1 = worst.1.max(heading);
+            if log && errors.samples % log_every == 0 {
+                tracing::debug!(
+                    target: "coordinator::truth",
+                    robot = id,
+                    t = truth.now.as_secs_f64(),
+                    truth = ?(p.x, p.y, p.theta),
+                    model = ?(v.pose.x, v.pose.y, v.pose.theta),
+                    odometry = ?(v.odometry.x, v.odometry.y, v.odometry.theta),
+                    line_um = { v.state.line.position_um },
+                );
+            }
+        }
+    }
+    errors
+}
+
+/// An angle in (−π, π].
+fn wrap_rad(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let w = (a + PI).rem_euclid(TAU) - PI;
+    if w == -PI {
+        PI
+    } else {
+        w
+    }
 }
 
 /// The longest wait for a robot's hello (shortened to the experiment's time limit).

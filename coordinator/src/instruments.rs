@@ -206,12 +206,14 @@ impl Hooks {
             .map(|r| crate::replay::check(r, &observed.captured));
         let recording = match &self.recorder {
             Some(rec) => {
-                // The behaviour's own word on the run, and what the safety check held back.
+                // The overall result (the behaviour's word overruled by the ground truth), the
+                // behaviour's own word, and what the safety check held back.
                 let t = (Instant::now() - self.t0).as_secs_f64();
                 rec.json(
                     Topic::Events,
                     &json!({"t": t, "robot": 0, "kind": "verdict",
-                        "detail": report.verdict.summary, "success": report.verdict.success,
+                        "detail": report.verdict.summary, "success": report.success(),
+                        "behaviour_success": report.verdict.success,
                         "metrics": report.verdict.metrics, "held": report.held_intents}),
                 );
                 Some((rec.path().to_path_buf(), rec.finish()?))

@@ -28,10 +28,10 @@ pub mod supervisor;
 pub mod sweep;
 pub mod world_model;
 
-pub use experiment::{load_world, run, run_with, LinkFault, Plan, Transport};
+pub use experiment::{load_world, run, run_with, Kick, LinkFault, Plan, Transport};
 pub use instruments::Run;
 pub use observer::Instruments;
-pub use report::{ObstacleReport, Report, RobotReport};
+pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};
 pub use simulator::BodyFault;
 
 /// An actix system on a current-thread tokio runtime, with its clock paused when `paused`: under a

@@ -1,10 +1,17 @@
-//! The experiment report: the behaviour's verdict and figures, per-robot odometry against ground
-//! truth, distances, collisions, link statistics, and simulated and wall time; as text or JSON.
+//! The experiment report: the behaviour's verdict and figures, what the simulator's ground truth
+//! saw (contacts), per-robot odometry against ground truth, distances, link statistics, and
+//! simulated and wall time; as text or JSON.
+//!
+//! The overall result ([`Report::success`]) is the behaviour's verdict overruled by the ground
+//! truth: a simulated run in which robots touched each other or a wall failed, whatever the
+//! behaviour concluded from what the robots reported.
 
 use std::fmt;
 use std::time::Duration;
 
 use behaviours::Verdict;
+
+use crate::world_model::LocalisationStats;
 use robot_actor::actor::LinkStats;
 use robot_actor::Pose;
 use serde::Serialize;
@@ -30,6 +37,14 @@ pub struct RobotReport {
     /// Measured wheel speeds (left, right) in the last state the robot reflected, m/s: zero
     /// once the experiment has stopped it.
     pub wheels_mps: (f64, f64),
+    /// The world model's worst position error against ground truth over the run, sampled every
+    /// 100 ms of experiment time, metres (simulated robots only).
+    pub worst_model_error_m: Option<f64>,
+    /// The world model's worst heading error against ground truth over the run, radians
+    /// (simulated robots only).
+    pub worst_model_heading_error_rad: Option<f64>,
+    /// How the robot's localisation went: lost episodes, time lost, worst uncertainty.
+    pub localisation: LocalisationStats,
 }
 
 impl RobotReport {
@@ -73,6 +88,39 @@ pub struct ObstacleReport {
     pub clear_of_tape_m: f64,
 }
 
+/// What the simulator's ground truth saw over a run (simulated robots only).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GroundTruth {
+    /// Robot–robot contacts.
+    pub robot_contacts: usize,
+    /// Robot–wall contacts.
+    pub wall_contacts: usize,
+    /// When each robot–robot contact began (simulated seconds) and between which robots.
+    pub collision_log: Vec<(f64, u16, u16)>,
+    /// How many times the world model was checked against the true poses.
+    pub model_samples: usize,
+}
+
+impl GroundTruth {
+    /// Whether nothing the ground truth forbids happened: no robot touched another or a wall.
+    pub fn clean(&self) -> bool {
+        self.robot_contacts == 0 && self.wall_contacts == 0
+    }
+
+    /// Why the ground truth fails the run, in one line; `None` when it is clean.
+    pub fn objection(&self) -> Option<String> {
+        (!self.clean()).then(|| {
+            format!(
+                "the ground truth saw {} robot–robot contact{} and {} wall contact{}",
+                self.robot_contacts,
+                if self.robot_contacts == 1 { "" } else { "s" },
+                self.wall_contacts,
+                if self.wall_contacts == 1 { "" } else { "s" },
+            )
+        })
+    }
+}
+
 /// Everything an experiment produced.
 #[derive(Clone, Debug)]
 pub struct Report {
@@ -82,18 +130,14 @@ pub struct Report {
     pub world: String,
     /// Seed.
     pub seed: u64,
-    /// The verdict.
+    /// The behaviour's verdict, as the behaviour gave it.
     pub verdict: Verdict,
+    /// What the ground truth saw (simulated robots only).
+    pub ground_truth: Option<GroundTruth>,
     /// Per-robot results.
     pub robots: Vec<RobotReport>,
     /// Obstacles at the end (ground truth; simulated robots only).
     pub obstacles: Vec<ObstacleReport>,
-    /// Robot–robot contacts (ground truth; simulated robots only).
-    pub robot_collisions: Option<usize>,
-    /// When each robot–robot contact began (simulated seconds) and between which robots.
-    pub collision_log: Vec<(f64, u16, u16)>,
-    /// Robot–wall contacts (ground truth; simulated robots only).
-    pub wall_contacts: Option<usize>,
     /// Intents the safety check held back.
     pub held_intents: Vec<String>,
     /// Encounters reported by the robots.
@@ -119,6 +163,11 @@ struct JsonRobot {
     off_tape_mm: Option<f64>,
     distance_m: Option<f64>,
     final_wheels_mps: [f64; 2],
+    worst_model_error_mm: Option<f64>,
+    worst_model_heading_error_deg: Option<f64>,
+    lost_episodes: u32,
+    lost_s: f64,
+    worst_uncertainty_mm: f64,
     packets_in: u64,
     packets_out: u64,
     checksum_errors: u64,
@@ -134,12 +183,20 @@ struct JsonReport<'a> {
     world: &'a str,
     seed: u64,
     success: bool,
+    behaviour_success: bool,
+    ground_truth_objection: Option<String>,
     summary: &'a str,
     metrics: std::collections::BTreeMap<&'a str, f64>,
     robots: Vec<JsonRobot>,
     obstacles: &'a [ObstacleReport],
     robot_collisions: Option<usize>,
     wall_contacts: Option<usize>,
+    worst_model_error_mm: Option<f64>,
+    worst_model_heading_error_deg: Option<f64>,
+    model_samples: Option<usize>,
+    lost_episodes: u32,
+    lost_s: f64,
+    worst_uncertainty_mm: f64,
     held_intents: &'a [String],
     encounters: usize,
     restarts: u32,
@@ -148,6 +205,69 @@ struct JsonReport<'a> {
 }
 
 impl Report {
+    /// The overall result: the behaviour succeeded and the ground truth, where there is one, saw
+    /// no contact.
+    pub fn success(&self) -> bool {
+        self.verdict.success && self.ground_truth.as_ref().is_none_or(GroundTruth::clean)
+    }
+
+    /// Why the ground truth fails a run the behaviour called a success; `None` otherwise.
+    pub fn overruled(&self) -> Option<String> {
+        if !self.verdict.success {
+            return None;
+        }
+        self.ground_truth.as_ref().and_then(GroundTruth::objection)
+    }
+
+    /// Robot–robot contacts (ground truth; simulated robots only).
+    pub fn robot_collisions(&self) -> Option<usize> {
+        self.ground_truth.as_ref().map(|g| g.robot_contacts)
+    }
+
+    /// Robot–wall contacts (ground truth; simulated robots only).
+    pub fn wall_contacts(&self) -> Option<usize> {
+        self.ground_truth.as_ref().map(|g| g.wall_contacts)
+    }
+
+    /// The world model's worst position error against ground truth over every robot and the
+    /// whole run, metres (simulated robots only).
+    pub fn worst_model_error_m(&self) -> Option<f64> {
+        self.robots
+            .iter()
+            .filter_map(|r| r.worst_model_error_m)
+            .reduce(f64::max)
+    }
+
+    /// The world model's worst heading error against ground truth over every robot and the whole
+    /// run, radians (simulated robots only).
+    pub fn worst_model_heading_error_rad(&self) -> Option<f64> {
+        self.robots
+            .iter()
+            .filter_map(|r| r.worst_model_heading_error_rad)
+            .reduce(f64::max)
+    }
+
+    /// Lost episodes summed over the robots.
+    pub fn lost_episodes(&self) -> u32 {
+        self.robots
+            .iter()
+            .map(|r| r.localisation.lost_episodes)
+            .sum()
+    }
+
+    /// Time lost summed over the robots.
+    pub fn lost_time(&self) -> Duration {
+        self.robots.iter().map(|r| r.localisation.lost_time).sum()
+    }
+
+    /// The largest position uncertainty the model gave any robot, metres.
+    pub fn worst_uncertainty_m(&self) -> f64 {
+        self.robots
+            .iter()
+            .map(|r| r.localisation.worst_uncertainty_m)
+            .fold(0.0, f64::max)
+    }
+
     /// The report as JSON.
     pub fn to_json(&self) -> String {
         let pose = |p: Pose| [p.x, p.y, p.theta];
@@ -155,7 +275,9 @@ impl Report {
             behaviour: &self.behaviour,
             world: &self.world,
             seed: self.seed,
-            success: self.verdict.success,
+            success: self.success(),
+            behaviour_success: self.verdict.success,
+            ground_truth_objection: self.ground_truth.as_ref().and_then(GroundTruth::objection),
             summary: &self.verdict.summary,
             metrics: self
                 .verdict
@@ -178,6 +300,13 @@ impl Report {
                     off_tape_mm: r.off_tape_m.map(|e| e * 1e3),
                     distance_m: r.distance_m,
                     final_wheels_mps: [r.wheels_mps.0, r.wheels_mps.1],
+                    worst_model_error_mm: r.worst_model_error_m.map(|e| e * 1e3),
+                    worst_model_heading_error_deg: r
+                        .worst_model_heading_error_rad
+                        .map(f64::to_degrees),
+                    lost_episodes: r.localisation.lost_episodes,
+                    lost_s: r.localisation.lost_time.as_secs_f64(),
+                    worst_uncertainty_mm: r.localisation.worst_uncertainty_m * 1e3,
                     packets_in: r.link.packets_in,
                     packets_out: r.link.packets_out,
                     checksum_errors: r.link.checksum_errors,
@@ -188,8 +317,16 @@ impl Report {
                 })
                 .collect(),
             obstacles: &self.obstacles,
-            robot_collisions: self.robot_collisions,
-            wall_contacts: self.wall_contacts,
+            robot_collisions: self.robot_collisions(),
+            wall_contacts: self.wall_contacts(),
+            worst_model_error_mm: self.worst_model_error_m().map(|e| e * 1e3),
+            worst_model_heading_error_deg: self
+                .worst_model_heading_error_rad()
+                .map(f64::to_degrees),
+            model_samples: self.ground_truth.as_ref().map(|g| g.model_samples),
+            lost_episodes: self.lost_episodes(),
+            lost_s: self.lost_time().as_secs_f64(),
+            worst_uncertainty_mm: self.worst_uncertainty_m() * 1e3,
             held_intents: &self.held_intents,
             encounters: self.encounters,
             restarts: self.restarts,
@@ -202,23 +339,22 @@ impl Report {
 
 impl fmt::Display for Report {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let verdict = if self.verdict.success {
-            "SUCCESS"
-        } else {
-            "FAILURE"
-        };
+        let verdict = if self.success() { "SUCCESS" } else { "FAILURE" };
         writeln!(
             f,
             "{} on {} (seed {}): {verdict}",
             self.behaviour, self.world, self.seed
         )?;
+        if let Some(why) = self.overruled() {
+            writeln!(f, "  the behaviour reported success, but {why}")?;
+        }
         writeln!(f, "  {}", self.verdict.summary)?;
         for (k, v) in &self.verdict.metrics {
             writeln!(f, "  {k}: {v:.3}")?;
         }
         writeln!(
             f,
-            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  driven [m]  rtt [ms]  in/out packets  losses"
+            "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  worst model err [mm, deg]  lost [n, s]  worst σ [mm]  driven [m]  rtt [ms]  in/out packets  losses"
         )?;
         for r in &self.robots {
             let truth = r.truth.map_or("        -        ".to_string(), |t| {
@@ -229,7 +365,7 @@ impl fmt::Display for Report {
             };
             writeln!(
                 f,
-                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {} {}  {}  {}  {:>7}/{:<7} {:>6}",
+                "  {:5}   {:7.1},{:7.1}   {truth}   {}  {}  {} {}  {} {}  {:>3} {:7.2}  {:12.1}  {}  {}  {:>7}/{:<7} {:>6}",
                 r.id,
                 r.odometry.x * 1e3,
                 r.odometry.y * 1e3,
@@ -237,6 +373,11 @@ impl fmt::Display for Report {
                 num(r.heading_error_deg(), 17, 2),
                 num(r.estimate_error_m().map(|e| e * 1e3), 10, 1),
                 num(r.estimate_heading_error_deg(), 9, 2),
+                num(r.worst_model_error_m.map(|e| e * 1e3), 15, 1),
+                num(r.worst_model_heading_error_rad.map(f64::to_degrees), 9, 2),
+                r.localisation.lost_episodes,
+                r.localisation.lost_time.as_secs_f64(),
+                r.localisation.worst_uncertainty_m * 1e3,
                 num(r.distance_m, 10, 3),
                 num(r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3), 8, 1),
                 r.link.packets_in,
@@ -254,16 +395,35 @@ impl fmt::Display for Report {
                 o.clear_of_tape_m * 1e3
             )?;
         }
-        if let Some(c) = self.robot_collisions {
+        if let Some(g) = &self.ground_truth {
             writeln!(
                 f,
-                "  robot-robot collisions: {c}; wall contacts: {}",
-                self.wall_contacts.unwrap_or(0)
+                "  ground truth: robot-robot contacts: {}; wall contacts: {}",
+                g.robot_contacts, g.wall_contacts
             )?;
-            for (t, a, b) in self.collision_log.iter().take(5) {
+            for (t, a, b) in g.collision_log.iter().take(5) {
                 writeln!(f, "    at {t:.2} s: robots {a} and {b}")?;
             }
+            if let (Some(e), Some(h)) = (
+                self.worst_model_error_m(),
+                self.worst_model_heading_error_rad(),
+            ) {
+                writeln!(
+                    f,
+                    "  ground truth: worst model error {:.1} mm, {:.2}° (checked {} times)",
+                    e * 1e3,
+                    h.to_degrees(),
+                    g.model_samples
+                )?;
+            }
         }
+        writeln!(
+            f,
+            "  localisation: {} lost episodes, {:.2} s lost in all; worst uncertainty {:.1} mm",
+            self.lost_episodes(),
+            self.lost_time().as_secs_f64(),
+            self.worst_uncertainty_m() * 1e3
+        )?;
         writeln!(
             f,
             "  encounters: {}; behaviour restarts: {}",
@@ -285,5 +445,77 @@ impl fmt::Display for Report {
             self.experiment_time.as_secs_f64(),
             self.wall_time.as_secs_f64()
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(contacts: (usize, usize)) -> Report {
+        Report {
+            behaviour: "token_ring".into(),
+            world: "oval".into(),
+            seed: 7,
+            verdict: Verdict::success("three rounds"),
+            ground_truth: Some(GroundTruth {
+                robot_contacts: contacts.0,
+                wall_contacts: contacts.1,
+                collision_log: vec![(1.5, 1, 2); contacts.0],
+                model_samples: 100,
+            }),
+            robots: Vec::new(),
+            obstacles: Vec::new(),
+            held_intents: Vec::new(),
+            encounters: 0,
+            restarts: 0,
+            experiment_time: Duration::from_secs(10),
+            wall_time: Duration::from_secs(1),
+        }
+    }
+
+    #[test]
+    fn contacts_overrule_the_behaviours_success() {
+        let r = report((3, 0));
+        assert!(!r.success());
+        let text = r.to_string();
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some("token_ring on oval (seed 7): FAILURE"),
+            "{text}"
+        );
+        assert_eq!(
+            lines.next(),
+            Some(
+                "  the behaviour reported success, but the ground truth saw 3 robot–robot \
+                 contacts and 0 wall contacts"
+            ),
+            "{text}"
+        );
+        let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(json["success"], false);
+        assert_eq!(json["behaviour_success"], true);
+        assert_eq!(json["robot_collisions"], 3);
+    }
+
+    #[test]
+    fn a_clean_ground_truth_keeps_the_verdict_and_a_failure_is_not_overruled() {
+        let r = report((0, 0));
+        assert!(r.success());
+        assert!(r
+            .to_string()
+            .starts_with("token_ring on oval (seed 7): SUCCESS\n  three"));
+        let mut failed = report((0, 1));
+        failed.verdict = Verdict::failure("lost the token");
+        assert!(!failed.success());
+        assert_eq!(failed.overruled(), None);
+        assert!(!failed
+            .to_string()
+            .contains("the behaviour reported success"));
+        // Without a ground truth (real robots) the behaviour's word stands.
+        failed.verdict = Verdict::success("three rounds");
+        failed.ground_truth = None;
+        assert!(failed.success());
     }
 }

@@ -43,6 +43,7 @@ fn plan(
             .collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 
@@ -105,8 +106,8 @@ fn oval_m() -> f64 {
 fn line_follow_laps_without_touching_for_seeds_1_to_10() {
     for seed in 1..=10 {
         let r = run("line_follow", None, None, seed, &[("laps", "2")]);
-        assert!(r.verdict.success, "seed {seed}: {r}");
-        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        assert!(r.success(), "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
         for robot in &r.robots {
             // Two laps of tape, give or take the sensor's lead.
             assert!(
@@ -127,8 +128,8 @@ fn line_follow_laps_without_touching_for_seeds_1_to_10() {
 fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
     for seed in 1..=10 {
         let r = run("cooperative_push", None, None, seed, &[]);
-        assert!(r.verdict.success, "seed {seed}: {r}");
-        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        assert!(r.success(), "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
         let b = the_box(&r);
         // Off the tape by more than a body length (48 mm).
         assert!(b.clear_of_tape_m > 0.048, "seed {seed}: {r}");
@@ -153,9 +154,9 @@ fn one_robot_alone_never_clears_the_box() {
 fn token_ring_goes_round_three_times_without_touching_for_seeds_1_to_10() {
     for seed in 1..=10 {
         let r = run("token_ring", None, None, seed, &[]);
-        assert!(r.verdict.success, "seed {seed}: {r}");
-        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
-        assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
+        assert!(r.success(), "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
+        assert_eq!(r.wall_contacts(), Some(0), "seed {seed}: {r}");
         // Three rounds of three robots, with the team turned round after each of the first two.
         assert_eq!(metric(&r, "passes"), Some(9.0), "seed {seed}: {r}");
         assert_eq!(metric(&r, "reversals"), Some(2.0), "seed {seed}: {r}");
@@ -184,9 +185,9 @@ fn traffic_control_serves_tasks_on_the_grid_without_collisions_for_seeds_1_to_10
             seed,
             &[("tasks", "40")],
         );
-        assert!(r.verdict.success, "seed {seed}: {r}");
-        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
-        assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
+        assert!(r.success(), "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
+        assert_eq!(r.wall_contacts(), Some(0), "seed {seed}: {r}");
         let tasks = metric(&r, "tasks");
         assert!(tasks.is_some_and(|t| t >= 40.0), "seed {seed}: {r}");
     }
@@ -203,8 +204,8 @@ fn two_robots_swap_ends_of_the_single_lane_stem() {
         1,
         &[("goals", "C,M,S2,D,Y,A,T,U4")],
     );
-    assert!(r.verdict.success, "{r}");
-    assert_eq!(r.robot_collisions, Some(0), "{r}");
+    assert!(r.success(), "{r}");
+    assert_eq!(r.robot_collisions(), Some(0), "{r}");
     let world = coordinator::load_world("junction").unwrap();
     let node = |id: &str| {
         let n = world.track.node_index(id).unwrap();
@@ -233,9 +234,9 @@ fn traffic_control_does_100_tasks_with_8_robots_on_junction_and_50_on_a_grid() {
         let r = run("traffic_control", Some(world), None, 1, &[("tasks", "100")]);
         assert_eq!(r.robots.len(), robots);
         // No deadlock: the behaviour fails on 30 s without any robot finishing an edge.
-        assert!(r.verdict.success, "{world}: {r}");
-        assert_eq!(r.robot_collisions, Some(0), "{world}: {r}");
-        assert_eq!(r.wall_contacts, Some(0), "{world}: {r}");
+        assert!(r.success(), "{world}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "{world}: {r}");
+        assert_eq!(r.wall_contacts(), Some(0), "{world}: {r}");
         let tasks = metric(&r, "tasks");
         assert!(tasks.is_some_and(|t| t >= 100.0), "{world}: {r}");
     }

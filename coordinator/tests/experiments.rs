@@ -23,6 +23,7 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
         params: Default::default(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 
@@ -33,7 +34,7 @@ fn run(plan: Plan, registry: &Registry) -> Report {
 #[test]
 fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
     let report = run(plan("square_walk", 3), &Registry::builtin());
-    assert!(report.verdict.success, "{report}");
+    assert!(report.success(), "{report}");
     let world = coordinator::load_world("open").unwrap();
     for r in &report.robots {
         let start = world.robots.iter().find(|s| s.id == r.id).unwrap();
@@ -53,7 +54,47 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
             r.distance_m
         );
     }
-    assert_eq!(report.robot_collisions, Some(0));
+    assert_eq!(report.robot_collisions(), Some(0));
+    // The model was checked against the truth every 100 ms of the walk, and stayed close to it.
+    let samples = report.ground_truth.as_ref().unwrap().model_samples;
+    let expected = (report.experiment_time.as_secs_f64() / 0.1) as usize;
+    assert!(
+        samples + 2 >= expected && samples <= expected + 2,
+        "{samples} samples in {:?}",
+        report.experiment_time
+    );
+    for r in &report.robots {
+        let worst = r.worst_model_error_m.expect("sampled");
+        assert!(worst > 0.0 && worst < 0.020, "robot {}: {report}", r.id);
+        // The model's pose is as old as the robot's last report: turning on the spot at several
+        // hundred degrees a second, that age alone is worth tens of degrees.
+        let heading = r.worst_model_heading_error_rad.unwrap();
+        assert!(heading > 0.0 && heading < 30f64.to_radians(), "{report}");
+    }
+}
+
+#[test]
+fn a_kicked_robot_is_where_its_model_is_not() {
+    let mut p = plan("square_walk", 3);
+    p.kicks.push(coordinator::Kick {
+        robot: 2,
+        at: Duration::from_secs(1),
+        dx_m: 0.0,
+        dy_m: 0.03,
+        dtheta_rad: 0.0,
+    });
+    let report = run(p, &Registry::builtin());
+    for r in &report.robots {
+        let worst = r.worst_model_error_m.unwrap();
+        if r.id == 2 {
+            // Nothing on an open floor tells the model: its error is the kick, to the end.
+            assert!(worst > 0.025, "{report}");
+            assert!(r.estimate_error_m().unwrap() > 0.025, "{report}");
+            assert!(r.odometry_error_m().unwrap() > 0.025, "{report}");
+        } else {
+            assert!(worst < 0.020, "{report}");
+        }
+    }
 }
 
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
@@ -153,7 +194,7 @@ fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
     let report = run(p, &Registry::builtin());
     let cut = &report.robots[0];
     assert!(cut.link.losses >= 1 && cut.link.reconnects >= 1, "{report}");
-    assert!(report.verdict.success, "{report}");
+    assert!(report.success(), "{report}");
     let world = coordinator::load_world("open").unwrap();
     let start = world.robots[0].position;
     let truth = cut.truth.unwrap();

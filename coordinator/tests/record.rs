@@ -28,6 +28,7 @@ fn plan(behaviour: &str, transport: Transport) -> Plan {
         params: Default::default(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     }
 }
 
@@ -100,7 +101,7 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     assert_eq!(verdict["kind"], "verdict");
     assert_eq!(
         verdict["success"],
-        serde_json::json!(recorded.report.verdict.success)
+        serde_json::json!(recorded.report.success())
     );
 
     // A finished recording recovers to the same messages, chunk for chunk.

@@ -142,8 +142,38 @@ fn a_sweep_summarises_what_its_run_reports_say() {
         }
     }
     assert!(outcomes.len() > 1, "both outcomes occur: {outcomes:?}");
+    // What the ground truth saw, per combination, from the same reports.
+    for (side, rs) in &reports {
+        let row = &summary[side];
+        let count = |key: &str| rs.iter().filter_map(|r| r[key].as_u64()).sum::<u64>();
+        assert_eq!(row["robot_contacts"], count("robot_collisions").to_string());
+        assert_eq!(row["wall_contacts"], count("wall_contacts").to_string());
+        assert_eq!(row["lost_episodes"], count("lost_episodes").to_string());
+        let overruled = rs
+            .iter()
+            .filter(|r| r["success"] == false && r["behaviour_success"] == true)
+            .count();
+        assert_eq!(row["overruled"], overruled.to_string());
+        let worst = rs
+            .iter()
+            .map(|r| {
+                r["worst_model_error_mm"]
+                    .as_f64()
+                    .expect("sampled model error")
+            })
+            .reduce(f64::max)
+            .unwrap();
+        assert!(worst > 0.0, "{side}: the model is never exactly right");
+        assert_eq!(row["worst_model_error_mm"], format!("{worst:.6}"));
+    }
+    for r in &results {
+        assert!(r["worst_model_error_mm"].as_f64().is_some(), "{r}");
+        assert!(r["behaviour_success"].as_bool().is_some(), "{r}");
+        assert!(r["lost_episodes"].as_u64().is_some(), "{r}");
+    }
     let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(md.contains("## Failure reasons"), "{md}");
+    assert!(md.contains("## Ground truth"), "{md}");
     for svg in ["success_vs_side.svg", "metric_worst_closure_mm.svg"] {
         let text = std::fs::read_to_string(out.join(svg)).unwrap_or_default();
         assert!(text.starts_with("<svg"), "{svg} is a plot");
@@ -250,6 +280,43 @@ fn shards_merge_into_the_unsharded_summary_and_runs_repeat_exactly() {
     assert_eq!(
         sorted(lines(&merged.join("results.jsonl"))),
         sorted(lines(&whole.join("results.jsonl")))
+    );
+
+    // Results written before the ground-truth fields existed still merge, with them empty.
+    let old = dir("old-shard");
+    std::fs::create_dir_all(&old).unwrap();
+    for entry in std::fs::read_dir(&a).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_file() {
+            std::fs::copy(&path, old.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    let mut old_lines = String::new();
+    for mut r in json_lines(&a.join("results.jsonl")) {
+        let o = r.as_object_mut().unwrap();
+        for key in [
+            "behaviour_success",
+            "worst_model_error_mm",
+            "lost_episodes",
+            "lost_s",
+        ] {
+            assert!(o.remove(key).is_some(), "{key}");
+        }
+        o.insert("worst_estimate_error_mm".into(), serde_json::json!(1.5));
+        old_lines.push_str(&serde_json::to_string(&r).unwrap());
+        old_lines.push('\n');
+    }
+    std::fs::write(old.join("results.jsonl"), old_lines).unwrap();
+    let remerged = dir("remerged");
+    let old_dir = old.to_string_lossy().to_string();
+    run_ok(&["sweep", "merge", &old_dir, &b_dir], &remerged, &[]);
+    let rs = json_lines(&remerged.join("results.jsonl"));
+    assert_eq!(rs.len(), 10);
+    assert_eq!(
+        rs.iter()
+            .filter(|r| r["worst_model_error_mm"].is_null() && r["lost_episodes"].is_null())
+            .count(),
+        5
     );
 }
 

@@ -26,6 +26,66 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
     Ok(secs)
 }
 
+/// A kick from the command line: robot id, when (simulated time from the start), and the
+/// displacement (metres along x and y, radians counter-clockwise).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KickArg {
+    /// Robot id.
+    pub robot: u16,
+    /// When.
+    pub at: std::time::Duration,
+    /// Displacement along x, metres.
+    pub dx_m: f64,
+    /// Displacement along y, metres.
+    pub dy_m: f64,
+    /// Turn, radians counter-clockwise.
+    pub dtheta_rad: f64,
+}
+
+/// Parses `ID:SECONDS:DX,DY[,DEG]` (metres and degrees), e.g. `2:5:0,0.03` or `2:5:0,0.03,15`;
+/// for clap's `value_parser`.
+pub fn parse_kick(text: &str) -> Result<KickArg, String> {
+    let usage = || format!("{text:?}: expected ID:SECONDS:DX,DY[,DEG], e.g. 2:5:0,0.03,15");
+    let mut parts = text.splitn(3, ':');
+    let (Some(id), Some(at), Some(by)) = (parts.next(), parts.next(), parts.next()) else {
+        return Err(usage());
+    };
+    let robot = id
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?}: robot id {id:?} is not a number from 0 to 65535"))?;
+    let at = parse_duration(at).map_err(|e| format!("{text:?}: when: {e}"))?;
+    let numbers: Vec<&str> = by.split(',').collect();
+    if !(2..=3).contains(&numbers.len()) {
+        return Err(usage());
+    }
+    let mut values = [0.0; 3];
+    for (v, n) in values.iter_mut().zip(&numbers) {
+        *v = n
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("{text:?}: {n:?} is not a finite number"))?;
+    }
+    if values[0].abs() > MAX_KICK_M || values[1].abs() > MAX_KICK_M {
+        return Err(format!(
+            "{text:?}: a kick moves a robot at most {MAX_KICK_M} m along each axis"
+        ));
+    }
+    Ok(KickArg {
+        robot,
+        at,
+        dx_m: values[0],
+        dy_m: values[1],
+        dtheta_rad: values[2].to_radians(),
+    })
+}
+
+/// The farthest a kick moves a robot along each axis, metres: beyond it the robot leaves any
+/// arena and the flag was a typo (millimetres for metres).
+pub const MAX_KICK_M: f64 = 10.0;
+
 /// Logs to stderr at `warn` unless `RUST_LOG` says otherwise, coloured only on a terminal (a log
 /// file or a test's captured output gets no escape codes).
 pub fn init_logging() {
@@ -56,6 +116,29 @@ mod tests {
             parse_duration("1.5"),
             Ok(std::time::Duration::from_millis(1500))
         );
+    }
+
+    #[test]
+    fn kicks_parse_with_and_without_a_turn_and_bad_ones_are_named() {
+        let k = parse_kick("2:5:0,0.03").unwrap();
+        assert_eq!(
+            (k.robot, k.at, k.dx_m, k.dy_m, k.dtheta_rad),
+            (2, std::time::Duration::from_secs(5), 0.0, 0.03, 0.0)
+        );
+        let k = parse_kick("7:0.5:-0.01,0.02,90").unwrap();
+        assert!((k.dtheta_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        for (bad, says) in [
+            ("2:5", "expected ID:SECONDS"),
+            ("x:5:0,0", "robot id"),
+            ("2:-1:0,0", "when"),
+            ("2:5:0", "expected ID:SECONDS"),
+            ("2:5:0,0,1,2", "expected ID:SECONDS"),
+            ("2:5:0,NaN", "not a finite number"),
+            ("2:5:30,0", "at most"),
+        ] {
+            let e = parse_kick(bad).expect_err(bad);
+            assert!(e.contains(says) && e.contains(bad), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -36,6 +36,9 @@ enum Command {
     Disconnect(usize, Option<oneshot::Sender<()>>),
     SetLinkUp(usize, bool),
     Truth(oneshot::Sender<Truth>),
+    Poses(oneshot::Sender<Poses>),
+    Displace(usize, [f64; 3], oneshot::Sender<Result<Pose, String>>),
+    DisplaceAt(Duration, usize, [f64; 3]),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
@@ -59,6 +62,16 @@ pub struct Truth {
     pub collision_log: Vec<(f64, u16, u16)>,
     /// Robot–wall contacts so far.
     pub wall_contacts: usize,
+}
+
+/// The robots' true poses at one instant: the part of [`Truth`] cheap enough to ask for many times
+/// a second.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Poses {
+    /// Simulated time.
+    pub now: Duration,
+    /// Robot ids and true poses, in world order.
+    pub robots: Vec<(u16, Pose)>,
 }
 
 /// What a host's side of one link has dropped for a full buffer, as (packets, bytes) per
@@ -240,6 +253,42 @@ impl SimHandle {
         rx.await.ok()
     }
 
+    /// The robots' true poses now, without the rest of [`Truth`] (contact logs, obstacles);
+    /// `None` once the simulation has stopped.
+    pub async fn poses(&self) -> Option<Poses> {
+        let (tx, rx) = oneshot::channel();
+        self.commands.send(Command::Poses(tx)).ok()?;
+        rx.await.ok()
+    }
+
+    /// Kicks robot `index` by (`dx`, `dy`) metres and `dtheta` radians between two steps (see
+    /// [`Simulation::displace`]) and returns its new true pose.
+    ///
+    /// # Errors
+    /// There is no such robot, the displacement is not finite, or the simulation has stopped.
+    pub async fn displace(
+        &self,
+        index: usize,
+        dx: f64,
+        dy: f64,
+        dtheta: f64,
+    ) -> Result<Pose, String> {
+        let (tx, rx) = oneshot::channel();
+        let stopped = || "cannot displace a robot: the simulation has stopped".to_string();
+        self.commands
+            .send(Command::Displace(index, [dx, dy, dtheta], tx))
+            .map_err(|_| stopped())?;
+        rx.await.map_err(|_| stopped())?
+    }
+
+    /// Kicks robot `index` as [`displace`](Self::displace) does, at simulated time `at` exactly
+    /// however fast the simulation runs (at once if that time has passed). The outcome is logged.
+    pub fn displace_at(&self, at: Duration, index: usize, dx: f64, dy: f64, dtheta: f64) {
+        let _ = self
+            .commands
+            .send(Command::DisplaceAt(at, index, [dx, dy, dtheta]));
+    }
+
     /// Runs `f` on the simulation between two steps and returns its result: any ground truth a
     /// test needs, or a fault to inject. `None` once the simulation has stopped.
     pub async fn inspect<T: Send + 'static>(
@@ -386,6 +435,7 @@ async fn step_loop(
     let dt = sim.dt();
     let wall_start = tokio::time::Instant::now();
     let sim_start = sim.now();
+    let mut kicks: Vec<(Duration, usize, [f64; 3])> = Vec::new();
     loop {
         while let Ok(c) = commands.try_recv() {
             match c {
@@ -403,10 +453,33 @@ async fn step_loop(
                 Command::Truth(reply) => {
                     let _ = reply.send(truth(&sim));
                 }
+                Command::Poses(reply) => {
+                    let _ = reply.send(Poses {
+                        now: sim.now(),
+                        robots: sim.robots().iter().map(|r| (r.id(), r.pose())).collect(),
+                    });
+                }
+                Command::Displace(i, [dx, dy, dtheta], reply) => {
+                    let _ = reply.send(sim.displace(i, dx, dy, dtheta));
+                }
+                Command::DisplaceAt(at, i, by) => kicks.push((at, i, by)),
                 Command::Inspect(job) => job(&mut sim),
                 Command::Stop => return sim,
             }
         }
+        kicks.retain(|&(at, i, [dx, dy, dtheta])| {
+            if sim.now() < at {
+                return true;
+            }
+            match sim.displace(i, dx, dy, dtheta) {
+                Ok(p) => {
+                    let robot = sim.robots()[i].id();
+                    tracing::info!(robot, x = p.x, y = p.y, theta = p.theta, "kicked");
+                }
+                Err(e) => tracing::warn!("{e}"),
+            }
+            false
+        });
         for (i, buffer) in to_robot.iter().enumerate() {
             drain_host_buffer(&mut sim, i, buffer);
         }

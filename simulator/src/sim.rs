@@ -513,6 +513,47 @@ impl Simulation {
         self.robots[i].fault = fault;
     }
 
+    /// Kicks robot `i`: moves its body by (`dx`, `dy`) metres and turns it by `dtheta` radians at
+    /// once, at rest, without telling its firmware. Its wheels never turn for it, so its encoders
+    /// and the odometry built on them do not see the move: only the ground truth and what the
+    /// sensors see from the new place do. Returns the new true pose.
+    ///
+    /// # Errors
+    /// There is no robot `i`, or the displacement is not finite.
+    pub fn displace(&mut self, i: usize, dx: f64, dy: f64, dtheta: f64) -> Result<Pose, String> {
+        let Some(r) = self.robots.get_mut(i) else {
+            return Err(match self.robots.len() {
+                0 => format!("cannot displace robot index {i}: the world has no robots"),
+                n => format!(
+                    "cannot displace robot index {i}: the world's robots are indexed 0 to {}",
+                    n - 1
+                ),
+            });
+        };
+        if !(dx.is_finite() && dy.is_finite() && dtheta.is_finite()) {
+            return Err(format!(
+                "cannot displace robot {} by ({dx}, {dy}) m and {dtheta} rad: not finite",
+                r.id
+            ));
+        }
+        let body = &mut self.bodies[r.body];
+        let x = f64::from(body.translation().x) + dx;
+        let y = f64::from(body.translation().y) + dy;
+        let theta = f64::from(body.rotation().angle()) + dtheta;
+        body.set_translation(vector![x as f32, y as f32], true);
+        body.set_rotation(Rotation::new(theta as f32), true);
+        body.set_linvel(vector![0.0, 0.0], true);
+        body.set_angvel(0.0, true);
+        // The true pose follows at once (the kick is not distance driven); its heading stays
+        // unwrapped, counting the turn the kick gave.
+        r.pose = Pose {
+            x: f64::from(body.translation().x),
+            y: f64::from(body.translation().y),
+            theta: r.pose.theta + dtheta,
+        };
+        Ok(r.pose)
+    }
+
     /// Reboots robot `i`'s firmware: RAM state is lost, the stored settings image is loaded again,
     /// and if its link is open it says hello again.
     pub fn reboot(&mut self, i: usize) {

@@ -352,3 +352,63 @@ fn jammed_wheels_hold_the_robot_and_dead_encoders_hide_its_motion() {
     assert!(blind_m > 0.1, "{blind_m} m");
     assert_eq!(blind_ticks, 0);
 }
+
+#[test]
+fn a_kick_moves_the_body_and_not_the_odometry() {
+    let mut sim = connected(world(OPEN), 1);
+    run(&mut sim, Duration::from_millis(500), |_, _| false);
+    let before = sim.robots()[0].pose();
+    let ticks = |sim: &simulator::Simulation| {
+        let e = sim.robots()[0].firmware().state().encoders;
+        (e.left_ticks, e.right_ticks)
+    };
+    let ticks_before = ticks(&sim);
+    let turn = 30f64.to_radians();
+    let kicked = sim.displace(0, 0.05, -0.02, turn).unwrap();
+    assert!((kicked.x - before.x - 0.05).abs() < 1e-4, "{kicked:?}");
+    assert!((kicked.y - before.y + 0.02).abs() < 1e-4, "{kicked:?}");
+    assert!(
+        (kicked.theta - before.theta - turn).abs() < 1e-4,
+        "{kicked:?}"
+    );
+    run(&mut sim, Duration::from_millis(500), |_, _| false);
+    let after = sim.robots()[0].pose();
+    assert!(
+        (after.x - kicked.x).hypot(after.y - kicked.y) < 5e-4,
+        "a kicked robot at rest stays where it landed: {kicked:?} → {after:?}"
+    );
+    assert_eq!(ticks(&sim), ticks_before, "the encoders saw the kick");
+    assert!(
+        sim.robots()[0].distance_m() < 1e-3,
+        "a kick is not distance driven"
+    );
+    // It drives on along its new heading.
+    send(
+        &mut sim,
+        0,
+        StraightMovement {
+            distance_m: 0.1,
+            speed_mps: 0.2,
+            move_id: 1,
+        },
+    );
+    run(&mut sim, Duration::from_secs(2), |_, _| false);
+    let driven = sim.robots()[0].pose();
+    let heading = (driven.y - after.y).atan2(driven.x - after.x);
+    assert!(
+        (heading - turn).abs() < 3f64.to_radians(),
+        "drove at {:.1}°",
+        heading.to_degrees()
+    );
+    assert_ne!(ticks(&sim), ticks_before);
+}
+
+#[test]
+fn a_kick_of_no_robot_or_by_no_number_is_refused() {
+    let mut sim = connected(world(OPEN), 1);
+    let e = sim.displace(3, 0.1, 0.0, 0.0).unwrap_err();
+    assert!(e.contains("index 3") && e.contains("0 to 0"), "{e}");
+    let e = sim.displace(0, f64::NAN, 0.0, 0.0).unwrap_err();
+    assert!(e.contains("not finite"), "{e}");
+    assert_eq!(sim.robots()[0].pose().x, 0.5);
+}

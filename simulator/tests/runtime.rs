@@ -66,3 +66,28 @@ async fn a_move_over_an_async_link_end_moves_the_body() {
     handle.stop();
     task.await.unwrap();
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_kick_lands_at_its_simulated_time_and_poses_report_it() {
+    let sim = Simulation::new(presets::preset("oval").unwrap(), SimConfig::default());
+    let start = sim.robots()[1].pose();
+    let (handle, _ends, task) = runtime::spawn(sim, Pace::TokioClock);
+    handle.displace_at(Duration::from_millis(500), 1, 0.0, 0.04, 0.0);
+    // Paused-clock time is simulated time.
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let before = handle.poses().await.unwrap();
+    assert!(before.now < Duration::from_millis(500), "{:?}", before.now);
+    assert!((before.robots[1].1.y - start.y).abs() < 1e-4, "{before:?}");
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let after = handle.poses().await.unwrap();
+    assert!(
+        (after.robots[1].1.y - start.y - 0.04).abs() < 1e-3,
+        "{after:?}"
+    );
+    assert_eq!(after.robots[0].1, before.robots[0].1, "only robot 1 moved");
+    let direct = handle.displace(1, 0.0, -0.04, 0.0).await.unwrap();
+    assert!((direct.y - start.y).abs() < 1e-3, "{direct:?}");
+    assert!(handle.displace(99, 0.0, 0.0, 0.0).await.is_err());
+    handle.stop();
+    let _ = task.await;
+}

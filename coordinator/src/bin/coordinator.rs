@@ -69,6 +69,10 @@ struct Args {
     /// Write the robots' trajectories over the track to this SVG file.
     #[arg(long, value_name = "FILE.svg")]
     plot: Option<PathBuf>,
+    /// Kick simulated robot ID at SECONDS of experiment time by DX,DY metres and DEG degrees
+    /// (repeatable): its body moves at once and its odometry never learns of it.
+    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
+    kick: Vec<simulator::cli::KickArg>,
     #[command(subcommand)]
     command: Option<Sub>,
 }
@@ -199,6 +203,17 @@ fn plan(args: &Args) -> Result<Plan> {
         params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: args
+            .kick
+            .iter()
+            .map(|k| coordinator::Kick {
+                robot: k.robot,
+                at: k.at,
+                dx_m: k.dx_m,
+                dy_m: k.dy_m,
+                dtheta_rad: k.dtheta_rad,
+            })
+            .collect(),
     })
 }
 
@@ -271,7 +286,7 @@ fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     finish(&run, registry, plot)?;
-    Ok(report.verdict.success)
+    Ok(report.success())
 }
 
 /// The world a plan runs in, for the plot.
@@ -363,6 +378,7 @@ fn replay_file(
         params: info.params.clone(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     };
     let plot = plot.map(|p| (p.to_path_buf(), plan.clone()));
     let instruments = Instruments {

@@ -212,7 +212,10 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         robot_collisions: None,
         wall_contacts: None,
         experiment_time_s: None,
-        worst_estimate_error_mm: None,
+        behaviour_success: None,
+        worst_model_error_mm: None,
+        lost_episodes: None,
+        lost_s: None,
     };
     let status = match status {
         Ok(s) => s,
@@ -274,11 +277,10 @@ fn read_report(path: &Path, result: &mut RunResult) -> Result<()> {
     result.robot_collisions = v["robot_collisions"].as_u64();
     result.wall_contacts = v["wall_contacts"].as_u64();
     result.experiment_time_s = v["experiment_time_s"].as_f64();
-    result.worst_estimate_error_mm = v["robots"].as_array().and_then(|rs| {
-        rs.iter()
-            .filter_map(|r| r["estimate_error_mm"].as_f64())
-            .reduce(f64::max)
-    });
+    result.behaviour_success = v["behaviour_success"].as_bool();
+    result.worst_model_error_mm = v["worst_model_error_mm"].as_f64();
+    result.lost_episodes = v["lost_episodes"].as_u64();
+    result.lost_s = v["lost_s"].as_f64();
     Ok(())
 }
 

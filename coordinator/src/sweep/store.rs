@@ -16,9 +16,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Outcome {
-    /// The behaviour succeeded (exit status 0).
+    /// The run succeeded (exit status 0): the behaviour did and the ground truth saw no contact.
     Success,
-    /// The behaviour failed (exit status 1).
+    /// The run failed (exit status 1): the behaviour did, or the ground truth overruled it.
     Failure,
     /// The run did not come to a verdict: another exit status, a signal, or no report.
     Error,
@@ -26,6 +26,7 @@ pub enum Outcome {
 
 /// One line of `results.jsonl`: a run's coordinates and what its report says. Keys keep this
 /// order; nothing in it depends on the wall clock, so the same run always gives the same line.
+/// Lines written before a field existed read with it empty, so old results still merge.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RunResult {
     /// The run's id.
@@ -56,14 +57,36 @@ pub struct RunResult {
     pub wall_contacts: Option<u64>,
     /// Experiment time, simulated seconds.
     pub experiment_time_s: Option<f64>,
-    /// The worst world-model position error over the robots at the end, mm.
-    pub worst_estimate_error_mm: Option<f64>,
+    /// Whether the behaviour itself called the run a success (`Some(true)` with a failed outcome:
+    /// the ground truth overruled it).
+    #[serde(default)]
+    pub behaviour_success: Option<bool>,
+    /// The world model's worst position error against ground truth over every robot and every
+    /// 100 ms sample of the run, mm.
+    #[serde(default)]
+    pub worst_model_error_mm: Option<f64>,
+    /// Lost episodes summed over the robots.
+    #[serde(default)]
+    pub lost_episodes: Option<u64>,
+    /// Time lost summed over the robots, seconds.
+    #[serde(default)]
+    pub lost_s: Option<f64>,
 }
 
 impl RunResult {
-    /// Whether the behaviour succeeded.
+    /// Whether the run succeeded (the behaviour did and the ground truth agreed).
     pub fn success(&self) -> bool {
         self.outcome == Outcome::Success
+    }
+
+    /// Whether the behaviour called the run a success but the ground truth failed it.
+    pub fn overruled(&self) -> bool {
+        self.outcome == Outcome::Failure && self.behaviour_success == Some(true)
+    }
+
+    /// Robot–robot and wall contacts together (0 when the report had none to give).
+    pub fn contacts(&self) -> u64 {
+        self.robot_collisions.unwrap_or(0) + self.wall_contacts.unwrap_or(0)
     }
 }
 

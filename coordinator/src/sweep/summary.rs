@@ -1,6 +1,7 @@
 //! A sweep's summary: per combination of coordinates (all but the seed) the runs, the success rate
-//! with its Wilson 95 % interval and, for each verdict metric, mean, median and 95th percentile;
-//! failure reasons grouped by message with numbers masked. Deterministic: rows in run order, fixed
+//! with its Wilson 95 % interval, what the ground truth saw (contacts, runs it failed against the
+//! behaviour's word, the world model's worst error, lost episodes) and, for each verdict metric,
+//! mean, median and 95th percentile; failure reasons grouped by message with numbers masked. Deterministic: rows in run order, fixed
 //! float formatting.
 
 use std::collections::BTreeMap;
@@ -103,6 +104,49 @@ impl MetricStats {
     }
 }
 
+/// What the ground truth saw over one combination's runs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TruthStats {
+    /// Runs with any robot–robot or wall contact.
+    pub runs_with_contacts: usize,
+    /// Robot–robot contacts over all runs.
+    pub robot_contacts: u64,
+    /// Wall contacts over all runs.
+    pub wall_contacts: u64,
+    /// Runs the behaviour called a success and the ground truth failed.
+    pub overruled: usize,
+    /// The world model's worst position error over every run, mm (runs that measured it).
+    pub worst_model_error_mm: Option<f64>,
+    /// The median over runs of each run's worst model error, mm.
+    pub median_model_error_mm: Option<f64>,
+    /// Lost episodes over all runs.
+    pub lost_episodes: u64,
+    /// Time lost over all runs, seconds.
+    pub lost_s: f64,
+}
+
+impl TruthStats {
+    /// The figures of some runs.
+    pub fn of(runs: &[&RunResult]) -> Self {
+        let mut errors: Vec<f64> = runs
+            .iter()
+            .filter_map(|r| r.worst_model_error_mm)
+            .filter(|e| e.is_finite())
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        Self {
+            runs_with_contacts: runs.iter().filter(|r| r.contacts() > 0).count(),
+            robot_contacts: runs.iter().filter_map(|r| r.robot_collisions).sum(),
+            wall_contacts: runs.iter().filter_map(|r| r.wall_contacts).sum(),
+            overruled: runs.iter().filter(|r| r.overruled()).count(),
+            worst_model_error_mm: errors.last().copied(),
+            median_model_error_mm: median(&errors),
+            lost_episodes: runs.iter().filter_map(|r| r.lost_episodes).sum(),
+            lost_s: runs.iter().filter_map(|r| r.lost_s).sum(),
+        }
+    }
+}
+
 /// One combination's row.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Combination {
@@ -120,6 +164,8 @@ pub struct Combination {
     pub interval: (f64, f64),
     /// Statistics of each verdict metric.
     pub metrics: BTreeMap<String, MetricStats>,
+    /// What the ground truth saw.
+    pub truth: TruthStats,
 }
 
 impl Combination {
@@ -206,6 +252,7 @@ pub fn summarise(definition: &Definition, results: &[RunResult]) -> Summary {
                 errors,
                 interval: wilson(successes, rs.len()),
                 metrics: stats,
+                truth: TruthStats::of(rs),
             }
         })
         .collect();
@@ -288,6 +335,14 @@ impl Summary {
                 "success_rate",
                 "wilson_low",
                 "wilson_high",
+                "runs_with_contacts",
+                "robot_contacts",
+                "wall_contacts",
+                "overruled",
+                "worst_model_error_mm",
+                "median_model_error_mm",
+                "lost_episodes",
+                "lost_s",
             ]
             .map(String::from),
         );
@@ -310,6 +365,15 @@ impl Summary {
             row.push(f6(c.rate()));
             row.push(f6(c.interval.0));
             row.push(f6(c.interval.1));
+            let t = &c.truth;
+            row.push(t.runs_with_contacts.to_string());
+            row.push(t.robot_contacts.to_string());
+            row.push(t.wall_contacts.to_string());
+            row.push(t.overruled.to_string());
+            row.push(t.worst_model_error_mm.map(f6).unwrap_or_default());
+            row.push(t.median_model_error_mm.map(f6).unwrap_or_default());
+            row.push(t.lost_episodes.to_string());
+            row.push(f6(t.lost_s));
             for m in &self.metrics {
                 match c.metrics.get(m) {
                     Some(s) => {
@@ -350,6 +414,29 @@ impl Summary {
                 100.0 * c.rate(),
                 100.0 * c.interval.0,
                 100.0 * c.interval.1
+            );
+        }
+        let _ = writeln!(s, "\n## Ground truth\n");
+        let _ = writeln!(
+            s,
+            "| combination | runs with contacts | robot contacts | wall contacts | overruled | worst model error [mm] | median [mm] | lost episodes | lost [s] |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+        for c in &self.combinations {
+            let t = &c.truth;
+            let mm = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {:.2} |",
+                c.key,
+                t.runs_with_contacts,
+                t.robot_contacts,
+                t.wall_contacts,
+                t.overruled,
+                mm(t.worst_model_error_mm),
+                mm(t.median_model_error_mm),
+                t.lost_episodes,
+                t.lost_s
             );
         }
         for m in &self.metrics {
@@ -426,6 +513,54 @@ mod tests {
         let s = MetricStats::of(&[3.0, 1.0, 2.0]).unwrap();
         assert_eq!((s.n, s.mean, s.median, s.p95), (3, 2.0, 2.0, 3.0));
         assert_eq!(MetricStats::of(&[]), None);
+    }
+
+    #[test]
+    fn ground_truth_figures_add_up_and_old_results_count_as_unmeasured() {
+        // A line written before the ground-truth fields existed.
+        let old: RunResult = serde_json::from_str(
+            r#"{"id":"seed=1","index":0,"combination":"all","world":null,"robots":null,
+            "params":{},"seed":1,"outcome":"success","exit_code":0,"summary":"ok","metrics":{},
+            "robot_collisions":0,"wall_contacts":0,"experiment_time_s":5.0,
+            "worst_estimate_error_mm":2.5}"#,
+        )
+        .unwrap();
+        assert_eq!(old.behaviour_success, None);
+        assert_eq!(old.worst_model_error_mm, None);
+        let run = |seed: u64, outcome, behaviour, contacts: (u64, u64), error, lost| RunResult {
+            id: format!("seed={seed}"),
+            index: seed as usize - 1,
+            seed,
+            outcome,
+            behaviour_success: Some(behaviour),
+            robot_collisions: Some(contacts.0),
+            wall_contacts: Some(contacts.1),
+            worst_model_error_mm: Some(error),
+            lost_episodes: Some(lost),
+            lost_s: Some(lost as f64 * 1.5),
+            ..old.clone()
+        };
+        let runs = [
+            old.clone(),
+            run(2, Outcome::Failure, true, (3, 0), 12.0, 1),
+            run(3, Outcome::Failure, false, (0, 2), 40.0, 0),
+            run(4, Outcome::Success, true, (0, 0), 8.0, 2),
+        ];
+        assert!(!runs[0].overruled() && runs[1].overruled() && !runs[2].overruled());
+        let t = TruthStats::of(&runs.iter().collect::<Vec<_>>());
+        assert_eq!(
+            t,
+            TruthStats {
+                runs_with_contacts: 2,
+                robot_contacts: 3,
+                wall_contacts: 2,
+                overruled: 1,
+                worst_model_error_mm: Some(40.0),
+                median_model_error_mm: Some(12.0),
+                lost_episodes: 3,
+                lost_s: 4.5,
+            }
+        );
     }
 
     #[test]

@@ -42,6 +42,10 @@ struct Args {
     /// still runs and answers, but it cannot move, or cannot measure that it does.
     #[arg(long, value_name = "ID:FAULT", value_parser = parse_body_fault)]
     body_fault: Vec<(u16, simulator::BodyFault)>,
+    /// Kick robot ID at SECONDS of simulated time by DX,DY metres and DEG degrees (repeatable):
+    /// its body moves at once and its odometry never learns of it.
+    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
+    kick: Vec<simulator::cli::KickArg>,
 }
 
 fn parse_body_fault(s: &str) -> Result<(u16, simulator::BodyFault), String> {
@@ -93,6 +97,13 @@ async fn main() -> Result<()> {
             .with_context(|| format!("--body-fault {id}: no robot {id} in the world"))?;
         sim.set_body_fault(i, Some(fault));
     }
+    let mut kicks = Vec::new();
+    for k in &args.kick {
+        let i = sim
+            .robot_index(k.robot)
+            .with_context(|| format!("--kick {}: no robot {} in the world", k.robot, k.robot))?;
+        kicks.push((i, *k));
+    }
     let pace = if args.fast {
         Pace::Unpaced
     } else {
@@ -110,6 +121,9 @@ async fn main() -> Result<()> {
         println!("robot {id} tcp://{addr}");
     }
     println!("serving {} robots", addrs.len());
+    for (i, k) in kicks {
+        handle.displace_at(k.at, i, k.dx_m, k.dy_m, k.dtheta_rad);
+    }
     match args.duration {
         Some(end) => loop {
             let t = handle.truth().await.context("simulation stopped")?;

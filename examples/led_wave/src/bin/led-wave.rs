@@ -24,6 +24,7 @@ fn main() -> anyhow::Result<()> {
         params: Default::default(),
         faults: Vec::new(),
         body_faults: Vec::new(),
+        kicks: Vec::new(),
     };
     let system = coordinator::actor_system(true);
     let report = system.block_on(coordinator::run(plan, &registry))?;
