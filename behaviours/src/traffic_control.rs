@@ -13,7 +13,22 @@
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
 //! under the line sensor keeps corrected.
 //!
-//! Success: the tasks asked for are done, without deadlock, and every robot's encoders measured
+//! Starts: a robot within 2 cm of a node stands on it; any other within 3 cm of the tape drives
+//! along its nearest edge to a free end node (the one ahead, else the one behind; two robots on
+//! one edge each take the end on their side). A robot farther from the tape, or with no free
+//! node to drive to, is refused with where it is and what is in the way.
+//!
+//! Recovery: a segment held back by the safety check is planned again from the robot's pose at
+//! the next snapshot; held for 4 s, or with no robot finishing an edge for 20 s (time a robot is
+//! lost does not count), no new action starts, every robot goes to a node (held robots, and from
+//! the second recovery on every driving robot, back to the node they came from; the others finish
+//! their edge) and the team is planned again from there. Three recoveries in a row without a task
+//! done fail the run, saying what each robot is doing or waiting for. A robot the world model
+//! loses keeps its leg; its dropped moves are not failures, and once found it drives the leg on
+//! from its new pose.
+//!
+//! Success: the tasks asked for are done (default [`TASKS_PER_ROBOT`] per robot, which 600 s fit
+//! on `junction` and `grid` with a margin), without deadlock, and every robot's encoders measured
 //! at least 90 % of the tape length of the edges it reported driving, less 2 cm for where it
 //! stood on its first node (a robot whose moves end without its wheels turning has not driven
 //! them). A robot whose wheels are driven for 3 s
@@ -801,12 +816,11 @@ impl TrafficControl {
             if self.quota.is_some_and(|q| b.tasks_done >= q) {
                 b.active = false;
             }
-            // Every robot now finishes the edge it is on; then the team is planned again. With
-            // the last task done, the plan runs to its end first, so every robot stands on its
-            // final node when the experiment ends.
-            if self.tasks < self.target_tasks {
-                self.phase = Phase::Draining;
-            }
+            // Every robot now finishes the edge it is on; then the team is planned again, or,
+            // with the last task done, the run ends with every robot on a node. (Running the
+            // plan to its end instead took minutes: LaCAM's paths for robots far from their
+            // goals can be long.)
+            self.phase = Phase::Draining;
         }
         if self.adg.as_ref().is_some_and(|a| a.is_done()) {
             self.phase = Phase::Draining;

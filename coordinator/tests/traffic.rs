@@ -1,0 +1,72 @@
+//! `traffic_control` from the starts a user's world file allows and with its defaults, run
+//! through the coordinator on simulated robots and judged from the simulator's ground truth.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use behaviours::Registry;
+use coordinator::{Plan, Report, Transport};
+
+/// Two lanes joined by single-lane rungs, every robot placed on a node.
+const LADDER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/ladder.toml");
+
+fn run(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Report {
+    let plan = Plan {
+        behaviour: "traffic_control".into(),
+        world: Some(world.into()),
+        robots: None,
+        transport: Transport::Sim,
+        seed,
+        realtime: false,
+        duration: Duration::from_secs(duration_s),
+        params: params
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect::<BTreeMap<_, _>>(),
+        faults: Vec::new(),
+        body_faults: Vec::new(),
+    };
+    coordinator::actor_system(true)
+        .block_on(coordinator::run(plan, &Registry::builtin()))
+        .expect("experiment runs")
+}
+
+fn metric(r: &Report, name: &str) -> Option<f64> {
+    r.verdict
+        .metrics
+        .iter()
+        .find(|(k, _)| k == name)
+        .map(|(_, v)| *v)
+}
+
+#[test]
+fn robots_placed_on_nodes_of_a_hand_made_ladder_serve_tasks_without_contact() {
+    for seed in 1..=3 {
+        let r = run(LADDER, seed, 900, &[("tasks", "12")]);
+        assert_eq!(r.robots.len(), 6);
+        assert!(r.verdict.success, "seed {seed}: {r}");
+        assert!(
+            metric(&r, "tasks").is_some_and(|t| t >= 12.0),
+            "seed {seed}: {r}"
+        );
+        assert_eq!(r.robot_collisions, Some(0), "seed {seed}: {r}");
+        assert_eq!(r.wall_contacts, Some(0), "seed {seed}: {r}");
+    }
+}
+
+#[test]
+fn the_default_task_count_fits_the_default_600_s_on_junction_and_grid() {
+    for world in ["junction", "grid"] {
+        let r = run(world, 1, 600, &[]);
+        assert!(r.verdict.success, "{world}: {r}");
+        let robots = r.robots.len() as f64;
+        assert!(
+            metric(&r, "tasks").is_some_and(|t| t >= 2.0 * robots),
+            "{world}: {r}"
+        );
+        // With a margin: three quarters of the time limit at most (seeds 1-10 on junction took
+        // 161-352 s).
+        assert!(r.experiment_time < Duration::from_secs(450), "{world}: {r}");
+        assert_eq!(r.robot_collisions, Some(0), "{world}: {r}");
+    }
+}
