@@ -996,6 +996,10 @@ impl Behaviour for TrafficControl {
         if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.iter_mut().find(|b| b.id == *robot) {
                 bot.outstanding = bot.outstanding.saturating_sub(1);
+                // The segment did not reach the node even if earlier moves of it are driven.
+                if let Some(leg) = bot.driving.as_mut() {
+                    leg.last = false;
+                }
                 if bot.lost.is_none() {
                     bot.held_since.get_or_insert(world.time);
                     bot.held_why = reason.to_owned();
@@ -1320,5 +1324,35 @@ mod tests {
         let leg = t.bots[0].driving.unwrap();
         assert_eq!(leg.to, node(&t, "F"), "it drives back where it came from");
         assert!(moves_for(&out, 2) > 0, "{out:?}");
+    }
+
+    #[test]
+    fn a_last_segment_whose_drive_was_held_does_not_count_as_arrived() {
+        let mut t = junction(&[2]);
+        // 5 cm before C, facing across the tape: a turn, then a straight onto C.
+        let w = snapshot(0, &[(2, 0.75, 0.15, 90.0)]);
+        let out = t.start(&w);
+        assert_eq!(out.len(), 2, "{out:?}");
+        t.on_held(&out[1], "another robot in the way", &w);
+        let turned = snapshot(1, &[(2, 0.75, 0.15, 0.0)]);
+        let done = RobotEventKind::MoveFinished {
+            id: 0,
+            outcome: MoveOutcome::Completed,
+        };
+        let out = t.on_event(2, &done, &turned);
+        assert!(
+            t.bots[0].driving.is_some_and(|l| l.to == node(&t, "C")),
+            "still driving to C"
+        );
+        assert!(
+            matches!(
+                out.as_slice(),
+                [Intent::Move {
+                    robot: 2,
+                    command: MoveCommand::Straight { .. }
+                }]
+            ),
+            "the straight is planned again: {out:?}"
+        );
     }
 }
