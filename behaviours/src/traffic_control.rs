@@ -816,11 +816,14 @@ impl TrafficControl {
             if self.quota.is_some_and(|q| b.tasks_done >= q) {
                 b.active = false;
             }
-            // Every robot now finishes the edge it is on; then the team is planned again, or,
-            // with the last task done, the run ends with every robot on a node. (Running the
-            // plan to its end instead took minutes: LaCAM's paths for robots far from their
-            // goals can be long.)
-            self.phase = Phase::Draining;
+            // Every robot now finishes the edge it is on; then the team is planned again. With
+            // the last task done, robots with a quota (scripted goals) run the plan to its end,
+            // so that one pushed aside returns to its goal; lifelong tasks end once every robot
+            // has finished its edge (running the plan to its end took minutes: LaCAM's paths for
+            // robots far from their goals can be long).
+            if self.tasks < self.target_tasks || self.quota.is_none() {
+                self.phase = Phase::Draining;
+            }
         }
         if self.adg.as_ref().is_some_and(|a| a.is_done()) {
             self.phase = Phase::Draining;
