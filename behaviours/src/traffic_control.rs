@@ -125,6 +125,8 @@ struct Bot {
     /// Since when its segments are being held back, and the latest reason.
     held_since: Option<Duration>,
     held_why: String,
+    /// Moves were sent since the last held one.
+    fresh_hold: bool,
     /// Why the world model lost it, while it is lost.
     lost: Option<String>,
     /// Move events still to come for moves dropped when it was lost.
@@ -223,6 +225,7 @@ impl TrafficControl {
                 retry: false,
                 held_since: None,
                 held_why: String::new(),
+                fresh_hold: false,
                 lost: None,
                 stale: 0,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
@@ -392,6 +395,7 @@ impl TrafficControl {
     fn send(&mut self, k: usize, route: Route) -> Vec<Intent> {
         let id = self.bots[k].id;
         self.bots[k].outstanding += route.moves.len();
+        self.bots[k].fresh_hold = true;
         route
             .moves
             .into_iter()
@@ -1005,7 +1009,10 @@ impl Behaviour for TrafficControl {
                 }
                 if bot.lost.is_none() {
                     bot.held_since.get_or_insert(world.time);
-                    bot.held_why = reason.to_owned();
+                    // The first held move of a batch says why; the rest only follow it.
+                    if std::mem::take(&mut bot.fresh_hold) {
+                        bot.held_why = reason.to_owned();
+                    }
                     if bot.outstanding == 0 && bot.driving.is_some() {
                         bot.retry = true;
                     }
@@ -1319,9 +1326,15 @@ mod tests {
         // Planned again from the pose at the next snapshot.
         let out = t.on_snapshot(&snapshot(1, &[(2, 0.7, 0.15, 0.0)]));
         assert!(moves_for(&out, 2) > 0);
-        for i in &out {
-            t.on_held(i, "another robot in the way", &w);
+        for (n, i) in out.iter().enumerate() {
+            let reason = if n == 0 {
+                "another robot in the way"
+            } else {
+                "follows a held move"
+            };
+            t.on_held(i, reason, &w);
         }
+        assert_eq!(t.bots[0].held_why, "another robot in the way");
         let out = t.on_snapshot(&snapshot(5, &[(2, 0.7, 0.15, 0.0)]));
         assert_eq!(t.recoveries_total, 1);
         let leg = t.bots[0].driving.unwrap();
