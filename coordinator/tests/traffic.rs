@@ -70,3 +70,28 @@ fn the_default_task_count_fits_the_default_600_s_on_junction_and_grid() {
         assert_eq!(r.robot_collisions, Some(0), "{world}: {r}");
     }
 }
+
+#[test]
+fn a_robot_placed_off_the_tape_is_refused_naming_it_and_the_distance() {
+    let ladder = std::fs::read_to_string(LADDER).expect("ladder world");
+    let moved = ladder.replace(
+        "# on R2\nid = 6\nx = 0.6\n",
+        "# off the tape\nid = 6\nx = 0.7\n",
+    );
+    assert_ne!(moved, ladder, "robot 6 is moved");
+    let path = std::env::temp_dir().join(format!("ladder-off-tape-{}.toml", std::process::id()));
+    std::fs::write(&path, moved).expect("temporary world");
+    let r = run(path.to_str().unwrap(), 1, 60, &[]);
+    std::fs::remove_file(&path).ok();
+    assert!(!r.verdict.success, "{r}");
+    let why = &r.verdict.summary;
+    assert!(
+        why.contains("robot 6") && why.contains("(0.700, 0.400)") && why.contains("10.0 cm"),
+        "{r}"
+    );
+    assert!(
+        r.experiment_time < Duration::from_secs(5),
+        "refused at once: {r}"
+    );
+    assert_eq!(metric(&r, "tasks"), Some(0.0), "{r}");
+}
