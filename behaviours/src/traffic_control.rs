@@ -13,10 +13,25 @@
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
 //! under the line sensor keeps corrected.
 //!
-//! Success: the tasks asked for are done, without deadlock, and every robot's encoders measured
-//! at least 90 % of the tape length of the edges it reported driving, less 2 cm for where it
-//! stood on its first node (a robot whose moves end without its wheels turning has not driven
-//! them). A robot whose wheels are driven for 3 s
+//! Starts: a robot within 2 cm of a node stands on it; any other within 3 cm of the tape drives
+//! along its nearest edge to a free end node (the one ahead, else the one behind; two robots on
+//! one edge each take the end on their side). A robot farther from the tape, or with no free
+//! node to drive to, is refused with where it is and what is in the way.
+//!
+//! Recovery: a segment held back by the safety check is planned again from the robot's pose at
+//! the next snapshot; held for 4 s, or with no robot finishing an edge for 20 s (time a robot is
+//! lost does not count), no new action starts, every robot goes to a node (held robots, and from
+//! the second recovery on every driving robot, back to the node they came from; the others finish
+//! their edge) and the team is planned again from there. Three recoveries in a row without a task
+//! done fail the run, saying what each robot is doing or waiting for. A robot the world model
+//! loses keeps its leg; its dropped moves are not failures, and once found it drives the leg on
+//! from its new pose.
+//!
+//! Success: the tasks asked for are done (default [`TASKS_PER_ROBOT`] per robot, 12 on
+//! `junction` and 18 on `grid`, which the coordinator's default 600 s fits with a margin),
+//! without deadlock, and every robot's encoders measured at least 90 % of the tape length of the
+//! edges it reported driving, less 2 cm for where it stood on its first node (a robot whose moves
+//! end without its wheels turning has not driven them). A robot whose wheels are driven for 3 s
 //! without an encoder pulse fails the run at once (see [`crate::evidence`]).
 
 use std::sync::Arc;
@@ -32,7 +47,9 @@ use robot_actor::{MoveCommand, Pose, RobotEventKind};
 use simulator::world::graph::TrackGraph;
 use simulator::world::Track;
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::api::{
+    Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, Verdict, WorldSnapshot,
+};
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::moves::{wrap, Route};
 
@@ -42,10 +59,21 @@ const DRIVE_MPS: f32 = 0.1;
 const LOOKAHEAD: f64 = 0.08;
 /// A segment bends the heading by at most twice this; beyond it the robot turns first.
 const MAX_BEND: f64 = 35.0 * std::f64::consts::PI / 180.0;
-/// No robot finishing an edge for this long (simulated) is a deadlock.
-const STALL_LIMIT: Duration = Duration::from_secs(30);
-/// How far from a node a robot standing on it may be, for judging the distance it drove.
+/// No robot finishing an edge for this long (simulated, lost time not counted) starts a recovery.
+const STALL_LIMIT: Duration = Duration::from_secs(20);
+/// A robot's segment held back by the safety check for this long starts a recovery.
+const HOLD_LIMIT: Duration = Duration::from_secs(4);
+/// Recoveries in a row without a task done before the run fails.
+const MAX_RECOVERIES: u32 = 3;
+/// How far from a node a robot standing on it may be, for judging the distance it drove and
+/// for taking a start pose as standing on the node.
 const NODE_SLACK_M: f64 = 0.02;
+/// Farthest a start pose may be from the tape: a robot drives onto the nearest edge from there.
+const REACH_M: f64 = 0.03;
+/// Default tasks per robot (rounded up for the team): 600 s, the coordinator's default duration,
+/// fits them on `junction` (12 tasks, about 3.6 a minute with a slow tail) and `grid` (18, about
+/// 19 a minute) with a margin.
+pub const TASKS_PER_ROBOT: f64 = 1.5;
 /// Search budget per plan; deterministic, unlike a time limit.
 const MAX_EXPANSIONS: u64 = 2_000_000;
 
@@ -62,7 +90,8 @@ enum Phase {
 /// An edge being driven, one short segment at a time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Leg {
-    /// ADG action index, `None` for the drive onto the first node.
+    /// ADG action index, `None` for a drive outside the plan (onto the first node, or back to
+    /// the node it came from in a recovery).
     index: Option<usize>,
     /// Track edge.
     edge: usize,
@@ -72,6 +101,9 @@ struct Leg {
     to: u32,
     /// The segment in flight ends at the node.
     last: bool,
+    /// Backed straight onto the node, keeping the heading (a robot placed between another robot
+    /// and the node ahead of it on a straight edge).
+    back: bool,
 }
 
 #[derive(Clone, Debug)]
@@ -84,11 +116,22 @@ struct Bot {
     outstanding: usize,
     /// The edge being driven.
     driving: Option<Leg>,
+    /// Its leg ended without a move (it already stood on the node): completed at the next step.
+    at_end: bool,
     tasks_done: u32,
     /// Tape length of the edges it finished driving, metres.
     edges_m: f64,
     /// A segment was held back by the safety check: plan it again.
     retry: bool,
+    /// Since when its segments are being held back, and the latest reason.
+    held_since: Option<Duration>,
+    held_why: String,
+    /// Moves were sent since the last held one.
+    fresh_hold: bool,
+    /// Why the world model lost it, while it is lost.
+    lost: Option<String>,
+    /// Move events still to come for moves dropped when it was lost.
+    stale: usize,
     rng: ChaCha8Rng,
     /// Has a task (false once its quota is done: it only keeps out of the way).
     active: bool,
@@ -108,6 +151,9 @@ pub struct TrafficControl {
     tasks: u32,
     replans: u32,
     held: u32,
+    /// Recoveries since the last task done, and in all.
+    recoveries: u32,
+    recoveries_total: u32,
     scripted: bool,
     plan_time_max: Duration,
     last_progress: Duration,
@@ -117,10 +163,10 @@ pub struct TrafficControl {
 }
 
 impl TrafficControl {
-    /// Builds it. Parameters: `tasks` (tasks to complete in all, default 100), `quota` (tasks per
-    /// robot after which it only keeps out of the way; default unlimited), `goals` (a
-    /// comma-separated list of node ids, one per robot: each robot's single task, for scripted
-    /// scenarios such as a swap through a single-lane section).
+    /// Builds it. Parameters: `tasks` (tasks to complete in all, default [`TASKS_PER_ROBOT`] per
+    /// robot), `quota` (tasks per robot after which it only keeps out of the way; default
+    /// unlimited), `goals` (a comma-separated list of node ids, one per robot: each robot's
+    /// single task, for scripted scenarios such as a swap through a single-lane section).
     ///
     /// # Errors
     /// A track without edges, unknown goal nodes, or a parameter out of range.
@@ -130,7 +176,8 @@ impl TrafficControl {
         }
         let graph = TrackGraph::new(&cfg.track);
         let mapf = Graph::from_petgraph(&graph.graph).map_err(|e| e.to_string())?;
-        let target_tasks: u32 = cfg.param("tasks", 100)?;
+        let default_tasks = ((TASKS_PER_ROBOT * cfg.robots.len() as f64).ceil() as u32).max(1);
+        let target_tasks: u32 = cfg.param("tasks", default_tasks)?;
         let quota: Option<u32> = match cfg.param_text("quota") {
             None => None,
             Some(q) => Some(
@@ -173,9 +220,15 @@ impl TrafficControl {
                 goal: scripted.as_ref().map_or(u32::MAX, |g| g[k]),
                 outstanding: 0,
                 driving: None,
+                at_end: false,
                 tasks_done: 0,
                 edges_m: 0.0,
                 retry: false,
+                held_since: None,
+                held_why: String::new(),
+                fresh_hold: false,
+                lost: None,
+                stale: 0,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
                 active: true,
             })
@@ -197,6 +250,8 @@ impl TrafficControl {
             tasks: 0,
             replans: 0,
             held: 0,
+            recoveries: 0,
+            recoveries_total: 0,
             scripted: scripted.is_some(),
             plan_time_max: Duration::ZERO,
             last_progress: Duration::ZERO,
@@ -210,6 +265,10 @@ impl TrafficControl {
         self.track.nodes()[node as usize].position
     }
 
+    fn name(&self, node: u32) -> &str {
+        &self.track.nodes()[node as usize].id
+    }
+
     /// The track edge between nodes `u` and `v`, and whether it runs from `u` to `v`.
     fn edge_between(&self, u: u32, v: u32) -> Option<(usize, bool)> {
         let e = self
@@ -221,12 +280,40 @@ impl TrafficControl {
         Some((e, self.track.edges()[e].from == u as usize))
     }
 
+    /// The node a leg starts from.
+    fn leg_from(&self, leg: &Leg) -> u32 {
+        let e = &self.track.edges()[leg.edge];
+        if leg.forward {
+            e.from as u32
+        } else {
+            e.to as u32
+        }
+    }
+
+    /// The same edge driven back to the node it started from, outside the plan.
+    fn reversed(&self, leg: &Leg) -> Leg {
+        Leg {
+            index: None,
+            edge: leg.edge,
+            forward: !leg.forward,
+            to: self.leg_from(leg),
+            last: false,
+            back: false,
+        }
+    }
+
     /// The next segment of `leg` from `pose`: a turn onto the tape if the robot faces away from
     /// it, then an arc (or straight) through a point `LOOKAHEAD` further along the tape, or the
     /// end node when that is nearer. Each segment is planned from the world model's pose, which
     /// the tape under the sensor keeps corrected, so errors of one segment are taken out by the
     /// next instead of adding up over a long curve.
     fn segment(&self, pose: Pose, leg: &mut Leg) -> Route {
+        if leg.back {
+            leg.last = true;
+            let q = self.position(leg.to);
+            let route = Route::from(pose, DRIVE_MPS).back_to(q.x, q.y);
+            return route;
+        }
         let len = self.track.edge_length(leg.edge);
         let here = self.track.nearest_on(leg.edge, Point2::new(pose.x, pose.y));
         let done = if leg.forward {
@@ -285,25 +372,31 @@ impl TrafficControl {
         route
     }
 
-    /// Sends robot `k` the next segment of its leg.
+    /// Sends robot `k` the next segment of its leg. A leg whose end the robot already stands on
+    /// needs no move: it is completed at the next step.
     fn drive(&mut self, k: usize, world: &WorldSnapshot) -> Vec<Intent> {
+        if self.bots[k].lost.is_some() {
+            return Vec::new();
+        }
         let (Some(mut leg), Some(view)) = (self.bots[k].driving, world.robot(self.bots[k].id))
         else {
             return Vec::new();
         };
         let route = self.segment(view.pose, &mut leg);
-        self.bots[k].driving = Some(leg);
         if route.moves.is_empty() {
             leg.last = true;
             self.bots[k].driving = Some(leg);
+            self.bots[k].at_end = true;
             return Vec::new();
         }
+        self.bots[k].driving = Some(leg);
         self.send(k, route)
     }
 
     fn send(&mut self, k: usize, route: Route) -> Vec<Intent> {
         let id = self.bots[k].id;
         self.bots[k].outstanding += route.moves.len();
+        self.bots[k].fresh_hold = true;
         route
             .moves
             .into_iter()
@@ -311,50 +404,126 @@ impl TrafficControl {
             .collect()
     }
 
-    /// Start poses are edge middles: each robot drives to the node ahead of it, or backs to
-    /// the one behind (on a straight) when another robot takes the one ahead.
+    /// Puts every robot on a node of its own. A robot within `NODE_SLACK_M` of a node stands on
+    /// it; any other drives along its nearest edge to an end node no other robot holds (the one
+    /// ahead first, else the one behind, backing on a straight). Two robots on one edge each take
+    /// the end on their side, so they never cross. A robot farther than `REACH_M` from the tape,
+    /// or with no free end to go to, is refused with where it is.
     fn place(&mut self, world: &WorldSnapshot) -> Result<Vec<Intent>, String> {
-        let mut taken: Vec<u32> = Vec::new();
-        let mut out = Vec::new();
-        for k in 0..self.bots.len() {
-            let id = self.bots[k].id;
+        let nodes = self.track.nodes();
+        let mut starts = Vec::with_capacity(self.bots.len());
+        for b in &self.bots {
+            let id = b.id;
             let view = world
                 .robot(id)
                 .ok_or_else(|| format!("robot {id} is not in the world"))?;
             let p = view.pose;
-            let near = self
-                .track
-                .nearest(Point2::new(p.x, p.y))
-                .ok_or("the track is empty")?;
-            let edge = &self.track.edges()[near.edge];
-            let heading = Vector2::new(p.theta.cos(), p.theta.sin());
-            let towards_to = near.tangent.dot(&heading) >= 0.0;
-            let (ahead, behind) = if towards_to {
-                (edge.to as u32, edge.from as u32)
-            } else {
-                (edge.from as u32, edge.to as u32)
-            };
-            if !taken.contains(&ahead) {
-                taken.push(ahead);
-                self.bots[k].node = ahead;
-                self.bots[k].driving = Some(Leg {
-                    index: None,
-                    edge: near.edge,
-                    forward: towards_to,
-                    to: ahead,
-                    last: false,
-                });
-                out.extend(self.drive(k, world));
-            } else if !taken.contains(&behind) && !edge.is_arc() {
-                taken.push(behind);
-                self.bots[k].node = behind;
-                let q = self.position(behind);
-                out.extend(self.send(k, Route::from(p, DRIVE_MPS).back_to(q.x, q.y)));
-            } else {
+            let at = Point2::new(p.x, p.y);
+            let near = self.track.nearest(at).ok_or("the track is empty")?;
+            if near.distance_m > REACH_M {
+                let e = &self.track.edges()[near.edge];
                 return Err(format!(
-                    "robot {id}: both ends of its edge are taken by other robots"
+                    "robot {id} starts at ({:.3}, {:.3}) m, {:.1} cm from the nearest tape (edge \
+                     {}-{}); traffic control drives a robot onto the track only from within {:.0} \
+                     cm of it: place the robot on a node or an edge",
+                    p.x,
+                    p.y,
+                    near.distance_m * 100.0,
+                    nodes[e.from].id,
+                    nodes[e.to].id,
+                    REACH_M * 100.0
                 ));
             }
+            let on_node = (0..nodes.len())
+                .map(|v| (v, (nodes[v].position - at).norm()))
+                .filter(|(_, d)| *d <= NODE_SLACK_M)
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(v, _)| v as u32);
+            starts.push((p, near, on_node));
+        }
+        let mut owner: Vec<Option<u16>> = vec![None; nodes.len()];
+        let mut placed = vec![false; self.bots.len()];
+        for (k, (_, _, on_node)) in starts.iter().enumerate() {
+            if let Some(v) = *on_node {
+                if owner[v as usize].is_none() {
+                    owner[v as usize] = Some(self.bots[k].id);
+                    self.bots[k].node = v;
+                    placed[k] = true;
+                }
+            }
+        }
+        let mut out = Vec::new();
+        for k in 0..self.bots.len() {
+            if placed[k] {
+                continue;
+            }
+            let id = self.bots[k].id;
+            let (p, near, _) = &starts[k];
+            let edge = &self.track.edges()[near.edge];
+            let (from, to) = (edge.from as u32, edge.to as u32);
+            let heading = Vector2::new(p.theta.cos(), p.theta.sin());
+            let towards_to = near.tangent.dot(&heading) >= 0.0;
+            let sharing: Vec<(u16, f64)> = (0..self.bots.len())
+                .filter(|&j| j != k && !placed[j] && starts[j].1.edge == near.edge)
+                .map(|j| (self.bots[j].id, starts[j].1.offset_m))
+                .collect();
+            let before = sharing.iter().any(|(_, o)| *o < near.offset_m);
+            let after = sharing.iter().any(|(_, o)| *o >= near.offset_m);
+            let candidates: Vec<u32> = match (before, after) {
+                (false, false) if towards_to => vec![to, from],
+                (false, false) => vec![from, to],
+                (false, true) => vec![from],
+                (true, false) => vec![to],
+                (true, true) => {
+                    return Err(format!(
+                        "robot {id} starts at ({:.3}, {:.3}) m between robots {} on edge {}-{}: \
+                         neither end is free to drive to without passing another robot",
+                        p.x,
+                        p.y,
+                        sharing
+                            .iter()
+                            .map(|(j, _)| j.to_string())
+                            .collect::<Vec<_>>()
+                            .join(" and "),
+                        self.name(from),
+                        self.name(to)
+                    ))
+                }
+            };
+            let Some(&target) = candidates.iter().find(|v| owner[**v as usize].is_none()) else {
+                let held = candidates
+                    .iter()
+                    .map(|v| {
+                        format!(
+                            "{} by robot {}",
+                            self.name(*v),
+                            owner[*v as usize].unwrap_or_default()
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                return Err(format!(
+                    "robot {id} starts at ({:.3}, {:.3}) m on edge {}-{}, and the nodes it could \
+                     drive to are taken ({held}): move it to a free node or edge",
+                    p.x,
+                    p.y,
+                    self.name(from),
+                    self.name(to)
+                ));
+            };
+            owner[target as usize] = Some(id);
+            self.bots[k].node = target;
+            let forward = target == to;
+            let facing = forward == towards_to;
+            self.bots[k].driving = Some(Leg {
+                index: None,
+                edge: near.edge,
+                forward,
+                to: target,
+                last: false,
+                back: !facing && !edge.is_arc(),
+            });
+            out.extend(self.drive(k, world));
         }
         Ok(out)
     }
@@ -432,7 +601,8 @@ impl TrafficControl {
             return out;
         }
         for k in 0..self.bots.len() {
-            if self.bots[k].driving.is_some() || self.bots[k].outstanding > 0 {
+            let b = &self.bots[k];
+            if b.driving.is_some() || b.outstanding > 0 || b.lost.is_some() {
                 continue;
             }
             let Some(action) = self.adg.as_ref().and_then(|a| a.ready(k)) else {
@@ -447,8 +617,8 @@ impl TrafficControl {
             tracing::debug!(
                 t = world.time.as_secs_f64(),
                 robot = self.bots[k].id,
-                from = %self.track.nodes()[action.from as usize].id,
-                to = %self.track.nodes()[action.to as usize].id,
+                from = %self.name(action.from),
+                to = %self.name(action.to),
                 pose = ?(view.pose.x, view.pose.y, view.pose.theta.to_degrees()),
                 "drive"
             );
@@ -458,8 +628,107 @@ impl TrafficControl {
                 forward,
                 to: action.to,
                 last: false,
+                back: false,
             });
             out.extend(self.drive(k, world));
+        }
+        out
+    }
+
+    /// What each robot is doing or waiting for, for a verdict that explains a stop.
+    fn explain(&self) -> String {
+        let mut lines = Vec::new();
+        for (k, b) in self.bots.iter().enumerate() {
+            let line = if let Some(why) = &b.lost {
+                format!("robot {} is lost ({why})", b.id)
+            } else if let Some(leg) = b.driving {
+                let route = format!("{}->{}", self.name(self.leg_from(&leg)), self.name(leg.to));
+                if b.held_since.is_some() {
+                    format!(
+                        "robot {} on {route}: its segment is held back ({})",
+                        b.id, b.held_why
+                    )
+                } else {
+                    format!("robot {} is driving {route}", b.id)
+                }
+            } else if let Some(adg) = self.adg.as_ref().filter(|_| self.phase == Phase::Running) {
+                let next = adg.completed(k);
+                match adg.actions(k).get(next) {
+                    None => format!(
+                        "robot {} stands on {}, its plan done",
+                        b.id,
+                        self.name(b.node)
+                    ),
+                    Some(a) => match adg.dependency(k, next) {
+                        Some((j, i)) if adg.completed(j) <= i => {
+                            let d = adg.actions(j)[i];
+                            format!(
+                                "robot {} on {} waits to enter {} until robot {} has driven {}->{}",
+                                b.id,
+                                self.name(b.node),
+                                self.name(a.to),
+                                self.bots[j].id,
+                                self.name(d.from),
+                                self.name(d.to)
+                            )
+                        }
+                        _ => format!(
+                            "robot {} on {} is free to drive to {}",
+                            b.id,
+                            self.name(b.node),
+                            self.name(a.to)
+                        ),
+                    },
+                }
+            } else {
+                format!("robot {} stands on {}", b.id, self.name(b.node))
+            };
+            lines.push(line);
+        }
+        lines.join("; ")
+    }
+
+    /// No progress: stop starting actions, bring every robot to a node (a robot whose segment
+    /// is held, or every driving robot from the second recovery on, drives back to the node it
+    /// came from; the others finish their edges) and plan the team again from there. Fails
+    /// once `MAX_RECOVERIES` recoveries in a row brought no task done.
+    fn recover(&mut self, world: &WorldSnapshot, why: String) -> Vec<Intent> {
+        self.recoveries += 1;
+        if self.recoveries > MAX_RECOVERIES {
+            let summary = format!(
+                "deadlock: {why}, after {MAX_RECOVERIES} replans from where the robots stood \
+                 without a task done ({} tasks done): {}",
+                self.tasks,
+                self.explain()
+            );
+            return self.fail(summary);
+        }
+        self.recoveries_total += 1;
+        tracing::info!(
+            t = world.time.as_secs_f64(),
+            recovery = self.recoveries,
+            %why,
+            state = %self.explain(),
+            "traffic control recovers"
+        );
+        self.last_progress = world.time;
+        self.phase = Phase::Draining;
+        let mut out = Vec::new();
+        for k in 0..self.bots.len() {
+            let b = &self.bots[k];
+            let Some(leg) = b.driving else { continue };
+            if b.lost.is_some() || !(b.held_since.is_some() || self.recoveries > 1) {
+                continue;
+            }
+            let back = self.reversed(&leg);
+            let b = &mut self.bots[k];
+            b.driving = Some(back);
+            b.held_since = None;
+            b.at_end = false;
+            if b.outstanding == 0 {
+                b.retry = false;
+                out.extend(self.drive(k, world));
+            }
         }
         out
     }
@@ -494,12 +763,13 @@ impl TrafficControl {
             .sum();
         self.verdict = Some(
             Verdict::success(format!(
-                "{} tasks done by {} robots, {:.1} per minute, {} plans; {driven:.1} m driven \
-                 by the encoders",
+                "{} tasks done by {} robots, {:.1} per minute, {} plans, {} recoveries; \
+                 {driven:.1} m driven by the encoders",
                 self.tasks,
                 self.bots.len(),
                 f64::from(self.tasks) / minutes.max(1e-9),
-                self.replans
+                self.replans,
+                self.recoveries_total
             ))
             .with("tasks", f64::from(self.tasks))
             .with("encoder_distance_m", driven)
@@ -508,6 +778,7 @@ impl TrafficControl {
                 f64::from(self.tasks) / minutes.max(1e-9),
             )
             .with("plans", f64::from(self.replans))
+            .with("recoveries", f64::from(self.recoveries_total))
             .with("held_segments", f64::from(self.held))
             .with("plan_time_max_ms", self.plan_time_max.as_secs_f64() * 1e3),
         );
@@ -521,7 +792,8 @@ impl TrafficControl {
         self.verdict = Some(
             Verdict::failure(why)
                 .with("tasks", f64::from(self.tasks))
-                .with("plans", f64::from(self.replans)),
+                .with("plans", f64::from(self.replans))
+                .with("recoveries", f64::from(self.recoveries_total)),
         );
         self.bots
             .iter()
@@ -529,21 +801,84 @@ impl TrafficControl {
             .collect()
     }
 
+    /// Robot `k` reached the end of `leg`.
+    fn complete_leg(&mut self, k: usize, leg: Leg, world: &WorldSnapshot) -> Result<(), String> {
+        self.bots[k].node = leg.to;
+        self.last_progress = world.time;
+        let Some(index) = leg.index else {
+            return Ok(());
+        };
+        self.bots[k].edges_m += self.track.edge_length(leg.edge);
+        if let Some(adg) = self.adg.as_mut() {
+            adg.complete(k, index)
+                .map_err(|e| format!("robot {}: {e}", self.bots[k].id))?;
+        }
+        let b = &mut self.bots[k];
+        if b.active && leg.to == b.goal {
+            b.tasks_done += 1;
+            self.tasks += 1;
+            self.recoveries = 0;
+            if self.quota.is_some_and(|q| b.tasks_done >= q) {
+                b.active = false;
+            }
+            // Every robot now finishes the edge it is on; then the team is planned again. With
+            // the last task done, robots with a quota (scripted goals) run the plan to its end,
+            // so that one pushed aside returns to its goal; lifelong tasks end once every robot
+            // has finished its edge (running the plan to its end took minutes: LaCAM's paths for
+            // robots far from their goals can be long).
+            if self.tasks < self.target_tasks || self.quota.is_none() {
+                self.phase = Phase::Draining;
+            }
+        }
+        if self.adg.as_ref().is_some_and(|a| a.is_done()) {
+            self.phase = Phase::Draining;
+        }
+        Ok(())
+    }
+
     fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
         }
-        if world.time.saturating_sub(self.last_progress) > STALL_LIMIT {
-            return self.fail(format!(
-                "deadlock: no robot finished an edge for {} s ({} tasks done)",
-                STALL_LIMIT.as_secs(),
-                self.tasks
-            ));
+        for k in 0..self.bots.len() {
+            if !std::mem::take(&mut self.bots[k].at_end) {
+                continue;
+            }
+            if let Some(leg) = self.bots[k].driving.take() {
+                if let Err(e) = self.complete_leg(k, leg, world) {
+                    return self.fail(e);
+                }
+            }
+        }
+        // A lost robot is the supervisor's to bring back: the wait is not a deadlock.
+        if self.bots.iter().any(|b| b.lost.is_some()) {
+            self.last_progress = world.time;
         }
         let mut out = Vec::new();
+        let held_long = self.bots.iter().find(|b| {
+            b.lost.is_none()
+                && b.held_since
+                    .is_some_and(|t| world.time.saturating_sub(t) >= HOLD_LIMIT)
+        });
+        if let Some(b) = held_long {
+            let why = format!(
+                "robot {}'s segment was held back for {} s ({})",
+                b.id,
+                HOLD_LIMIT.as_secs(),
+                b.held_why
+            );
+            out.extend(self.recover(world, why));
+        } else if world.time.saturating_sub(self.last_progress) > STALL_LIMIT {
+            let why = format!("no robot finished an edge for {} s", STALL_LIMIT.as_secs());
+            out.extend(self.recover(world, why));
+        }
+        if self.verdict.is_some() {
+            return out;
+        }
         for k in 0..self.bots.len() {
-            if self.bots[k].retry && self.bots[k].outstanding == 0 {
+            let b = &self.bots[k];
+            if b.retry && b.outstanding == 0 && b.lost.is_none() {
                 self.bots[k].retry = false;
                 out.extend(self.drive(k, world));
             }
@@ -551,12 +886,9 @@ impl TrafficControl {
         let all_still = self
             .bots
             .iter()
-            .all(|b| b.outstanding == 0 && b.driving.is_none());
-        match self.phase {
-            Phase::Placing if all_still => {
-                self.phase = Phase::Draining;
-            }
-            _ => {}
+            .all(|b| b.outstanding == 0 && b.driving.is_none() && b.lost.is_none());
+        if self.phase == Phase::Placing && all_still {
+            self.phase = Phase::Draining;
         }
         if self.phase == Phase::Draining && all_still {
             if self.tasks >= self.target_tasks {
@@ -574,35 +906,18 @@ impl TrafficControl {
         out
     }
 
-    /// Robot `k` finished driving an action.
-    fn arrived(&mut self, k: usize, index: usize, node: u32, world: &WorldSnapshot) -> Vec<Intent> {
-        self.bots[k].node = node;
-        self.last_progress = world.time;
-        if let Some(adg) = self.adg.as_mut() {
-            if let Err(e) = adg.complete(k, index) {
-                return self.fail(format!("robot {}: {e}", self.bots[k].id));
-            }
-        }
+    /// Robot `k` is lost: its queued moves are dropped by the supervisor, so their events are
+    /// not progress nor failure; its leg is kept for when it is found.
+    fn lose(&mut self, k: usize, why: String) {
         let b = &mut self.bots[k];
-        if b.active && node == b.goal {
-            b.tasks_done += 1;
-            self.tasks += 1;
-            if self.quota.is_some_and(|q| b.tasks_done >= q) {
-                b.active = false;
-            }
-            // Every robot now finishes the edge it is on; then the team is planned again. With
-            // the last task done, the plan runs to its end first, so every robot stands on its
-            // final node when the experiment ends.
-            if self.tasks < self.target_tasks {
-                self.phase = Phase::Draining;
-            }
+        b.stale += b.outstanding;
+        b.outstanding = 0;
+        b.retry = false;
+        b.held_since = None;
+        if let Some(leg) = b.driving.as_mut() {
+            leg.last = false;
         }
-        if self.adg.as_ref().is_some_and(|a| a.is_done()) {
-            self.phase = Phase::Draining;
-        }
-        let mut out = self.step(world);
-        out.extend(self.dispatch(world));
-        out
+        b.lost = Some(why);
     }
 }
 
@@ -637,33 +952,42 @@ impl Behaviour for TrafficControl {
         };
         match event {
             RobotEventKind::MoveFinished { outcome, .. } => {
+                if self.bots[k].lost.is_some() {
+                    let b = &mut self.bots[k];
+                    b.stale = b.stale.saturating_sub(1);
+                    return Vec::new();
+                }
                 if *outcome != MoveOutcome::Completed {
+                    if self.bots[k].stale > 0 {
+                        self.bots[k].stale -= 1;
+                        return Vec::new();
+                    }
+                    // The supervisor may stop a robot it lost before telling us so.
+                    if world
+                        .robot(robot)
+                        .is_some_and(|v| v.localisation == Localisation::Lost)
+                    {
+                        self.lose(k, "the world model lost it".into());
+                        let b = &mut self.bots[k];
+                        b.stale = b.stale.saturating_sub(1);
+                        return Vec::new();
+                    }
                     return self.fail(format!("robot {robot}: a move ended {outcome:?}"));
                 }
                 let bot = &mut self.bots[k];
+                bot.held_since = None;
                 bot.outstanding = bot.outstanding.saturating_sub(1);
                 if bot.outstanding == 0 {
                     match bot.driving {
                         Some(leg) if leg.last => {
                             self.bots[k].driving = None;
-                            if leg.index.is_some() {
-                                self.bots[k].edges_m += self.track.edge_length(leg.edge);
-                            }
-                            return match leg.index {
-                                Some(index) => self.arrived(k, index, leg.to, world),
-                                None => {
-                                    self.last_progress = world.time;
-                                    self.step(world)
-                                }
-                            };
-                        }
-                        Some(_) => return self.drive(k, world),
-                        None => {
-                            if self.phase == Phase::Placing {
-                                self.last_progress = world.time;
+                            if let Err(e) = self.complete_leg(k, leg, world) {
+                                return self.fail(e);
                             }
                             return self.step(world);
                         }
+                        Some(_) => return self.drive(k, world),
+                        None => return self.step(world),
                     }
                 }
                 Vec::new()
@@ -673,20 +997,61 @@ impl Behaviour for TrafficControl {
         }
     }
 
-    fn on_held(&mut self, intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+    fn on_held(&mut self, intent: &Intent, reason: &str, world: &WorldSnapshot) -> Vec<Intent> {
         // The plan keeps robots apart by construction; a held segment means the world model saw
-        // a robot closer than the plan assumed (a pose error). The robot waits and the segment is
-        // planned again at the next snapshot; a lasting disagreement ends as a stall.
+        // a robot closer than the plan assumed (a pose error). The segment is planned again from
+        // the robot's pose at the next snapshot; held for `HOLD_LIMIT`, the team is replanned.
         if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.iter_mut().find(|b| b.id == *robot) {
                 bot.outstanding = bot.outstanding.saturating_sub(1);
-                if bot.outstanding == 0 && bot.driving.is_some() {
-                    bot.retry = true;
+                // The segment did not reach the node even if earlier moves of it are driven.
+                if let Some(leg) = bot.driving.as_mut() {
+                    leg.last = false;
+                }
+                if bot.lost.is_none() {
+                    bot.held_since.get_or_insert(world.time);
+                    // The first held move of a batch says why; the rest only follow it.
+                    if std::mem::take(&mut bot.fresh_hold) {
+                        bot.held_why = reason.to_owned();
+                    }
+                    if bot.outstanding == 0 && bot.driving.is_some() {
+                        bot.retry = true;
+                    }
                 }
             }
             self.held += 1;
         }
         Vec::new()
+    }
+
+    fn on_localisation(
+        &mut self,
+        robot: u16,
+        event: &LocalisationEvent,
+        world: &WorldSnapshot,
+    ) -> Vec<Intent> {
+        if self.verdict.is_some() {
+            return Vec::new();
+        }
+        let Some(k) = self.bots.iter().position(|b| b.id == robot) else {
+            return Vec::new();
+        };
+        match event {
+            LocalisationEvent::Lost { why } => {
+                self.lose(k, why.clone());
+                Vec::new()
+            }
+            LocalisationEvent::Found => {
+                self.bots[k].lost = None;
+                self.last_progress = world.time;
+                let mut out = Vec::new();
+                if self.bots[k].driving.is_some() && self.bots[k].outstanding == 0 {
+                    out.extend(self.drive(k, world));
+                }
+                out.extend(self.step(world));
+                out
+            }
+        }
     }
 
     fn verdict(&self) -> Option<Verdict> {
@@ -737,6 +1102,7 @@ mod tests {
                 forward,
                 to: v,
                 last: false,
+                back: false,
             };
             // A robot on u facing the wrong way: it turns, then follows the tape segment by
             // segment, each segment ending on the tape, until the last ends on v.
@@ -758,5 +1124,252 @@ mod tests {
             assert!(leg.last);
             assert!((Point2::new(pose.x, pose.y) - t.position(v)).norm() < 1e-6);
         }
+    }
+
+    use crate::api::RobotView;
+
+    fn junction(robots: &[u16]) -> TrafficControl {
+        let w = presets::preset("junction").unwrap();
+        let cfg = BehaviourConfig {
+            robots: robots.to_vec(),
+            track: Arc::new(w.track),
+            ..Default::default()
+        };
+        TrafficControl::new(&cfg).unwrap()
+    }
+
+    /// A snapshot at `secs` with robots at `(id, x, y, heading in degrees)`.
+    fn snapshot(secs: u64, robots: &[(u16, f64, f64, f64)]) -> WorldSnapshot {
+        WorldSnapshot {
+            time: Duration::from_secs(secs),
+            robots: robots
+                .iter()
+                .map(|&(id, x, y, deg)| RobotView {
+                    id,
+                    connected: true,
+                    pose: Pose {
+                        x,
+                        y,
+                        theta: deg.to_radians(),
+                    },
+                    ..Default::default()
+                })
+                .collect(),
+            encounters: Vec::new(),
+            arena: (1.6, 1.0),
+        }
+    }
+
+    fn node(t: &TrafficControl, id: &str) -> u32 {
+        t.graph.node(id).unwrap().index() as u32
+    }
+
+    fn moves_for(out: &[Intent], robot: u16) -> usize {
+        out.iter()
+            .filter(|i| matches!(i, Intent::Move { robot: r, .. } if *r == robot))
+            .count()
+    }
+
+    #[test]
+    fn a_robot_on_a_node_stands_there_and_is_planned_from_it() {
+        let mut t = junction(&[1]);
+        // C is at (0.8, 0.15): 1 cm off it still stands on it.
+        let w = snapshot(0, &[(1, 0.81, 0.15, 90.0)]);
+        let out = t.start(&w);
+        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        assert_eq!(moves_for(&out, 1), 0, "{out:?}");
+        assert_eq!(t.bots[0].node, node(&t, "C"));
+        // At the next snapshot the team is planned and the robot drives its first edge.
+        let out = t.on_snapshot(&snapshot(1, &[(1, 0.81, 0.15, 90.0)]));
+        assert_eq!(t.phase, Phase::Running);
+        assert!(moves_for(&out, 1) > 0, "{out:?}");
+        assert!(t.bots[0].driving.is_some_and(|l| l.index.is_some()));
+    }
+
+    #[test]
+    fn a_robot_on_an_edge_drives_to_the_node_ahead_or_the_free_one_behind() {
+        let mut t = junction(&[1, 2]);
+        // Robot 1 stands on C; robot 2 on the main line between F and C, heading for C, backs
+        // to F.
+        let w = snapshot(0, &[(1, 0.8, 0.15, 0.0), (2, 0.7, 0.15, 0.0)]);
+        let out = t.start(&w);
+        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        assert_eq!(t.bots[0].node, node(&t, "C"));
+        assert_eq!(t.bots[1].node, node(&t, "F"));
+        let leg = t.bots[1].driving.unwrap();
+        assert!(leg.back && leg.to == node(&t, "F"), "{leg:?}");
+        match out.as_slice() {
+            [Intent::Move {
+                robot: 2,
+                command: MoveCommand::Straight { distance_m, .. },
+            }] => assert!((*distance_m + 0.25).abs() < 1e-3, "{out:?}"),
+            _ => panic!("robot 2 backs to F: {out:?}"),
+        }
+        // Alone, it drives ahead to C.
+        let mut t = junction(&[2]);
+        let out = t.start(&snapshot(0, &[(2, 0.7, 0.15, 0.0)]));
+        assert_eq!(t.bots[0].node, node(&t, "C"));
+        assert!(!t.bots[0].driving.unwrap().back);
+        assert!(moves_for(&out, 2) > 0);
+    }
+
+    #[test]
+    fn two_robots_on_one_edge_take_the_end_on_their_side() {
+        let mut t = junction(&[1, 2]);
+        // Both head for C; robot 1 is behind robot 2, so it goes back to F instead of passing.
+        t.start(&snapshot(0, &[(1, 0.55, 0.15, 0.0), (2, 0.7, 0.15, 0.0)]));
+        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        assert_eq!(t.bots[0].node, node(&t, "F"));
+        assert_eq!(t.bots[1].node, node(&t, "C"));
+    }
+
+    #[test]
+    fn a_robot_off_the_tape_is_refused_with_where_it_is() {
+        let mut t = junction(&[1, 7]);
+        let out = t.start(&snapshot(0, &[(1, 0.8, 0.15, 0.0), (7, 0.8, 0.42, 0.0)]));
+        let v = t.verdict.clone().expect("refused");
+        assert!(!v.success);
+        assert!(
+            v.summary.contains("robot 7")
+                && v.summary.contains("(0.800, 0.420)")
+                && v.summary.contains("12.0 cm"),
+            "{}",
+            v.summary
+        );
+        assert!(out.iter().all(|i| matches!(i, Intent::Stop { .. })));
+    }
+
+    #[test]
+    fn a_robot_with_both_ends_taken_is_refused_naming_who_holds_them() {
+        let mut t = junction(&[1, 2, 3]);
+        t.start(&snapshot(
+            0,
+            &[
+                (1, 0.45, 0.15, 0.0),
+                (2, 0.8, 0.15, 0.0),
+                (3, 0.62, 0.15, 0.0),
+            ],
+        ));
+        let v = t.verdict.clone().expect("refused");
+        assert!(
+            v.summary.contains("robot 3") && v.summary.contains("C by robot 2"),
+            "{}",
+            v.summary
+        );
+    }
+
+    #[test]
+    fn a_lost_robot_keeps_its_leg_and_drives_it_again_when_found() {
+        let mut t = junction(&[2]);
+        let w = snapshot(0, &[(2, 0.7, 0.15, 0.0)]);
+        let out = t.start(&w);
+        let sent = moves_for(&out, 2);
+        assert!(sent > 0);
+        t.on_localisation(
+            2,
+            &LocalisationEvent::Lost {
+                why: "tape where none is".into(),
+            },
+            &w,
+        );
+        // Its dropped moves end aborted: not a failure, not progress.
+        for _ in 0..sent {
+            let aborted = RobotEventKind::MoveFinished {
+                id: 0,
+                outcome: MoveOutcome::Stopped,
+            };
+            assert!(t.on_event(2, &aborted, &w).is_empty());
+        }
+        // Lost for longer than a stall would take is no deadlock.
+        let late = snapshot(120, &[(2, 0.7, 0.15, 0.0)]);
+        t.on_snapshot(&late);
+        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        let found = snapshot(121, &[(2, 0.74, 0.16, 10.0)]);
+        let out = t.on_localisation(2, &LocalisationEvent::Found, &found);
+        assert!(moves_for(&out, 2) > 0, "{out:?}");
+        assert_eq!(t.bots[0].driving.unwrap().to, node(&t, "C"));
+    }
+
+    #[test]
+    fn without_progress_the_team_recovers_then_fails_saying_who_waits_for_what() {
+        let mut t = junction(&[1, 2]);
+        let poses = [(1, 0.8, 0.15, 0.0), (2, 0.7, 0.15, 0.0)];
+        t.start(&snapshot(0, &poses));
+        // Robot 2's moves never finish; each stall is a recovery that sends it back and forth.
+        let mut secs = 0;
+        while t.verdict.is_none() && secs < 1000 {
+            secs += 1;
+            t.on_snapshot(&snapshot(secs, &poses));
+        }
+        let v = t.verdict.clone().expect("fails");
+        assert!(!v.success);
+        assert_eq!(t.recoveries_total, MAX_RECOVERIES);
+        assert!(
+            v.summary.contains("deadlock") && v.summary.contains("robot 2 is driving"),
+            "{}",
+            v.summary
+        );
+        assert!(
+            secs > STALL_LIMIT.as_secs() * u64::from(MAX_RECOVERIES + 1),
+            "{secs}"
+        );
+    }
+
+    #[test]
+    fn a_segment_held_for_seconds_sends_the_robot_back_and_replans() {
+        let mut t = junction(&[2]);
+        let w = snapshot(0, &[(2, 0.7, 0.15, 0.0)]);
+        let out = t.start(&w);
+        for i in &out {
+            t.on_held(i, "another robot in the way", &w);
+        }
+        assert!(t.bots[0].retry);
+        // Planned again from the pose at the next snapshot.
+        let out = t.on_snapshot(&snapshot(1, &[(2, 0.7, 0.15, 0.0)]));
+        assert!(moves_for(&out, 2) > 0);
+        for (n, i) in out.iter().enumerate() {
+            let reason = if n == 0 {
+                "another robot in the way"
+            } else {
+                "follows a held move"
+            };
+            t.on_held(i, reason, &w);
+        }
+        assert_eq!(t.bots[0].held_why, "another robot in the way");
+        let out = t.on_snapshot(&snapshot(5, &[(2, 0.7, 0.15, 0.0)]));
+        assert_eq!(t.recoveries_total, 1);
+        let leg = t.bots[0].driving.unwrap();
+        assert_eq!(leg.to, node(&t, "F"), "it drives back where it came from");
+        assert!(moves_for(&out, 2) > 0, "{out:?}");
+    }
+
+    #[test]
+    fn a_last_segment_whose_drive_was_held_does_not_count_as_arrived() {
+        let mut t = junction(&[2]);
+        // 5 cm before C, facing across the tape: a turn, then a straight onto C.
+        let w = snapshot(0, &[(2, 0.75, 0.15, 90.0)]);
+        let out = t.start(&w);
+        assert_eq!(out.len(), 2, "{out:?}");
+        t.on_held(&out[1], "another robot in the way", &w);
+        let turned = snapshot(1, &[(2, 0.75, 0.15, 0.0)]);
+        let done = RobotEventKind::MoveFinished {
+            id: 0,
+            outcome: MoveOutcome::Completed,
+        };
+        let out = t.on_event(2, &done, &turned);
+        assert!(
+            t.bots[0].driving.is_some_and(|l| l.to == node(&t, "C")),
+            "still driving to C"
+        );
+        assert!(
+            matches!(
+                out.as_slice(),
+                [Intent::Move {
+                    robot: 2,
+                    command: MoveCommand::Straight { .. }
+                }]
+            ),
+            "the straight is planned again: {out:?}"
+        );
     }
 }
