@@ -78,6 +78,9 @@ pub struct Kick {
     pub dy_m: f64,
     /// Turn, radians counter-clockwise.
     pub dtheta_rad: f64,
+    /// Further displacement to the robot's left (negative: right) at the moment of the kick,
+    /// metres: a sideways shove whatever way the robot faces then.
+    pub sideways_m: f64,
 }
 
 /// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
@@ -284,10 +287,17 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             let h = h.clone();
             tokio::spawn(async move {
                 tokio::time::sleep(kick.at).await;
-                match h
-                    .displace(index, kick.dx_m, kick.dy_m, kick.dtheta_rad)
-                    .await
-                {
+                let (mut dx, mut dy) = (kick.dx_m, kick.dy_m);
+                if kick.sideways_m != 0.0 {
+                    let heading = h
+                        .poses()
+                        .await
+                        .and_then(|p| p.robots.get(index).map(|(_, p)| p.theta))
+                        .unwrap_or(0.0);
+                    dx -= kick.sideways_m * heading.sin();
+                    dy += kick.sideways_m * heading.cos();
+                }
+                match h.displace(index, dx, dy, kick.dtheta_rad).await {
                     Ok(p) => tracing::info!(
                         robot = kick.robot,
                         x = p.x,

@@ -26,6 +26,8 @@ use crate::world_model::RELOCATE_M;
 const SEARCH_MPS: f32 = 0.03;
 /// Turning speed (wheel speed) of the routine's turns.
 const TURN_MPS: f32 = 0.03;
+/// Where the line sensor sits ahead of the robot's centre.
+const SENSOR_AHEAD_M: f64 = 0.016;
 /// Longest wait for the wheels to stop after a stop command.
 const BRAKE_LIMIT: Duration = Duration::from_millis(600);
 /// Below this wheel speed a robot counts as stopped.
@@ -201,10 +203,12 @@ impl Relocaliser {
         Some(Action::Moves(moves))
     }
 
-    /// Face across the tape, then out to one side, back through to the other, and back.
+    /// Face across the tape, then out to one side, back through to the other, and back. The
+    /// sensor leads the centre by 16 mm, so each leg goes that much farther: the sensor then
+    /// covers the reach on both sides.
     fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
         let across = Vector2::new(-self.tape.y, self.tape.x);
-        let reach = self.reach_m as f32;
+        let reach = (self.reach_m + SENSOR_AHEAD_M) as f32;
         vec![
             turn_to(pose.theta, across.y.atan2(across.x)),
             straight(reach),
@@ -295,7 +299,7 @@ mod tests {
                 other => panic!("{other:?}"),
             })
             .collect();
-        assert_eq!(reaches, vec![0.06, -0.12, 0.06]);
+        assert_eq!(reaches, vec![0.076, -0.152, 0.076]);
         // The tape is found: stop, then align from the fixed pose (facing +y, centre 16 mm
         // below the tape at y = 0.2).
         assert_eq!(r.fixed(now), Action::Stop);

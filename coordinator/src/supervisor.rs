@@ -315,6 +315,7 @@ impl Supervisor {
                 }
             }
             Action::Moves(moves) => {
+                tracing::debug!(robot = id, ?moves, "re-localisation moves");
                 let mut held = Vec::new();
                 for command in moves {
                     let intent = Intent::Move { robot: id, command };

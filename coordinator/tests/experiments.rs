@@ -82,6 +82,7 @@ fn a_kicked_robot_is_where_its_model_is_not() {
         dx_m: 0.0,
         dy_m: 0.03,
         dtheta_rad: 0.0,
+        sideways_m: 0.0,
     });
     let report = run(p, &Registry::builtin());
     for r in &report.robots {

@@ -11,7 +11,16 @@ use coordinator::{Plan, Report, Transport};
 const LADDER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/ladder.toml");
 
 fn run(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Report {
-    let plan = Plan {
+    coordinator::actor_system(true)
+        .block_on(coordinator::run(
+            plan_for(world, seed, duration_s, params),
+            &Registry::builtin(),
+        ))
+        .expect("experiment runs")
+}
+
+fn plan_for(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Plan {
+    Plan {
         behaviour: "traffic_control".into(),
         world: Some(world.into()),
         robots: None,
@@ -26,10 +35,7 @@ fn run(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Repo
         faults: Vec::new(),
         body_faults: Vec::new(),
         kicks: Vec::new(),
-    };
-    coordinator::actor_system(true)
-        .block_on(coordinator::run(plan, &Registry::builtin()))
-        .expect("experiment runs")
+    }
 }
 
 fn metric(r: &Report, name: &str) -> Option<f64> {
@@ -95,4 +101,36 @@ fn a_robot_placed_off_the_tape_is_refused_naming_it_and_the_distance() {
         "refused at once: {r}"
     );
     assert_eq!(metric(&r, "tasks"), Some(0.0), "{r}");
+}
+
+/// A robot shoved 30 mm sideways while it drives no longer sees the tape where the model puts
+/// it: the supervisor finds it lost, stops it, re-localises it on the tape and lets it go on;
+/// the team finishes its tasks without contact and the model is back within millimetres.
+#[test]
+fn a_robot_kicked_sideways_is_found_lost_stopped_and_relocalised_without_contact() {
+    let mut plan = plan_for("grid", 1, 600, &[]);
+    plan.kicks.push(coordinator::Kick {
+        robot: 1,
+        at: Duration::from_secs(12),
+        dx_m: 0.0,
+        dy_m: 0.0,
+        dtheta_rad: 0.0,
+        sideways_m: 0.03,
+    });
+    let r = coordinator::actor_system(true)
+        .block_on(coordinator::run(plan, &Registry::builtin()))
+        .expect("experiment runs");
+    assert!(r.success(), "{r}");
+    assert_eq!(r.robot_collisions(), Some(0), "{r}");
+    assert_eq!(r.wall_contacts(), Some(0), "{r}");
+    let kicked = r.robots.iter().find(|x| x.id == 1).expect("robot 1");
+    assert!(kicked.localisation.lost_episodes >= 1, "{r}");
+    assert!(kicked.localisation.lost_time > Duration::ZERO, "{r}");
+    // The kick itself is the model's error until the robot is found lost and re-localised.
+    assert!(kicked.worst_model_error_m.unwrap() >= 0.025, "{r}");
+    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{r}");
+    for other in r.robots.iter().filter(|x| x.id != 1) {
+        assert_eq!(other.localisation.lost_episodes, 0, "{r}");
+        assert!(other.worst_model_error_m.unwrap() < 0.03, "{r}");
+    }
 }

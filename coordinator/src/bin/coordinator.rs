@@ -212,6 +212,7 @@ fn plan(args: &Args) -> Result<Plan> {
                 dx_m: k.dx_m,
                 dy_m: k.dy_m,
                 dtheta_rad: k.dtheta_rad,
+                sideways_m: 0.0,
             })
             .collect(),
     })
