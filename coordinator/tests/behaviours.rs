@@ -176,24 +176,6 @@ fn token_ring_goes_round_three_times_without_touching_for_seeds_1_to_10() {
 }
 
 #[test]
-fn traffic_control_serves_tasks_on_the_grid_without_collisions_for_seeds_1_to_10() {
-    for seed in 1..=10 {
-        let r = run(
-            "traffic_control",
-            Some("grid"),
-            None,
-            seed,
-            &[("tasks", "40")],
-        );
-        assert!(r.success(), "seed {seed}: {r}");
-        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
-        assert_eq!(r.wall_contacts(), Some(0), "seed {seed}: {r}");
-        let tasks = metric(&r, "tasks");
-        assert!(tasks.is_some_and(|t| t >= 40.0), "seed {seed}: {r}");
-    }
-}
-
-#[test]
 fn two_robots_swap_ends_of_the_single_lane_stem() {
     // Robot 5 starts at T, the stem's lower end, and must reach Y at its top; robot 7 the other
     // way. The six others keep their nodes and step aside only if in the way.
