@@ -85,6 +85,8 @@ pub const LOST_SIGMA_M: f64 = 0.03;
 /// A robot found lost is at least this uncertain (1σ) until a fix: the line sensor reaches
 /// about 13 mm either side, and it lost the tape.
 const LOST_FLOOR_M: f64 = 0.015;
+/// And its heading this uncertain: a turn on the spot that slipped by 17° was seen to cause it.
+const LOST_FLOOR_RAD: f64 = 15.0 * PI / 180.0;
 /// While lost, a tape seen within this of the estimate is taken as the one the robot is beside.
 pub const RELOCATE_M: f64 = 0.08;
 /// `LineState::flags` bits: no spot sees the line; line following is on.
@@ -467,6 +469,9 @@ impl WorldModel {
                 for i in 0..2 {
                     e.cov[(i, i)] = e.cov[(i, i)].max(floor);
                 }
+                // The heading may be what is wrong (a turn that slipped): once the tape fixes
+                // the position across it, driving along it measures the heading again.
+                e.cov[(2, 2)] = e.cov[(2, 2)].max(LOST_FLOOR_RAD * LOST_FLOOR_RAD);
                 transition = Some(Transition::Lost(why));
             }
         }
