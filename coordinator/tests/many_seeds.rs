@@ -5,7 +5,8 @@
 //! snapshot (sampled every 100 ms).
 //!
 //! These take minutes, so they are ignored by the default `cargo test`; CI runs them in a step
-//! of their own: `cargo test --release -p coordinator --test many_seeds -- --ignored`.
+//! of their own, in the test profile the suite has already built (about 2 minutes on 2 cores):
+//! `cargo test -p coordinator --test many_seeds -- --ignored`.
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -79,13 +80,13 @@ fn seeds_1_to_10(world: &str, duration_s: u64, params: &[(&str, &str)]) {
 }
 
 #[test]
-#[ignore = "minutes: CI's many-seed step runs it in release"]
+#[ignore = "minutes: CI's many-seed step runs it"]
 fn traffic_control_with_its_defaults_on_junction_for_seeds_1_to_10() {
     seeds_1_to_10("junction", 600, &[]);
 }
 
 #[test]
-#[ignore = "minutes: CI's many-seed step runs it in release"]
+#[ignore = "minutes: CI's many-seed step runs it"]
 fn traffic_control_does_200_tasks_on_the_grid_for_seeds_1_to_10() {
     seeds_1_to_10("grid", 1200, &[("tasks", "200")]);
 }
