@@ -17,7 +17,7 @@ use std::time::Duration;
 
 use robot_actor::RobotEventKind;
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::api::{Behaviour, BehaviourConfig, Intent, LocalisationEvent, Verdict, WorldSnapshot};
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::track_loop::TrackLoop;
 
@@ -272,6 +272,20 @@ impl Behaviour for LineFollow {
             // A robot back from a link loss has stopped following; it is sent its speed again.
             RobotEventKind::Connected(_) => f.sent = 0.0,
             _ => {}
+        }
+        Vec::new()
+    }
+
+    fn on_localisation(
+        &mut self,
+        robot: u16,
+        event: &LocalisationEvent,
+        _world: &WorldSnapshot,
+    ) -> Vec<Intent> {
+        // A lost robot was stopped and its follow commands held; once found it is sent its
+        // speed again at the next snapshot.
+        if let (Some(f), LocalisationEvent::Found) = (self.followers.get_mut(&robot), event) {
+            f.sent = 0.0;
         }
         Vec::new()
     }
