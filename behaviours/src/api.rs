@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use protocol::RobotState;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
-use simulator::world::Track;
+use world::Track;
 
 /// How well the world model knows a robot's pose: one standard deviation of its position (along
 /// the worst direction) and of its heading. It grows with the distance driven and the angle
@@ -468,7 +468,7 @@ impl Registry {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use simulator::world::presets;
+    use world::presets;
 
     /// A config on the behaviour's own world, as the coordinator builds it.
     fn config(registry: &Registry, name: &str, params: &[(&str, &str)]) -> BehaviourConfig {

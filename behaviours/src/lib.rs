@@ -20,4 +20,4 @@ pub use api::{
 pub use evidence::{Odometer, Stall};
 pub use protocol::packets::MoveOutcome;
 pub use robot_actor::{MoveCommand, Pose, RobotEventKind};
-pub use simulator::world::graph::TrackGraph;
+pub use world::graph::TrackGraph;

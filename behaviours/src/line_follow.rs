@@ -300,8 +300,8 @@ mod tests {
     use super::*;
     use crate::api::RobotView;
     use robot_actor::Pose;
-    use simulator::world::presets;
     use std::sync::Arc;
+    use world::presets;
 
     fn cfg(robots: Vec<u16>) -> BehaviourConfig {
         BehaviourConfig {
@@ -311,7 +311,7 @@ mod tests {
         }
     }
 
-    fn at(id: u16, x: f64, y: f64, theta: f64, track: &simulator::world::Track) -> RobotView {
+    fn at(id: u16, x: f64, y: f64, theta: f64, track: &world::Track) -> RobotView {
         let n = track.nearest(nalgebra::Point2::new(x, y)).unwrap();
         RobotView {
             id,

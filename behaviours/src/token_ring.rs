@@ -84,7 +84,7 @@ struct Bot {
 #[derive(Clone, Debug)]
 pub struct TokenRing {
     track: TrackLoop,
-    tape: std::sync::Arc<simulator::world::Track>,
+    tape: std::sync::Arc<world::Track>,
     speed: f32,
     rounds: u32,
     order: Vec<u16>,

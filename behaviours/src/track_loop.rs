@@ -1,7 +1,7 @@
 //! A closed loop of tape as one coordinate: the arc length from the loop's start, in the direction
 //! its edges run. Behaviours on a round track use it for laps and for the gap to the robot ahead.
 
-use simulator::world::Track;
+use world::Track;
 
 /// A track that is one closed loop, its edges in driving order.
 #[derive(Clone, Debug, PartialEq)]
@@ -91,7 +91,7 @@ impl TrackLoop {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use simulator::world::presets;
+    use world::presets;
 
     #[test]
     fn oval_is_a_loop_whose_coordinate_runs_with_its_edges() {

@@ -44,8 +44,8 @@ use protocol::packets::MoveOutcome;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use robot_actor::{MoveCommand, Pose, RobotEventKind};
-use simulator::world::graph::TrackGraph;
-use simulator::world::Track;
+use world::graph::TrackGraph;
+use world::Track;
 
 use crate::api::{
     Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, Verdict, WorldSnapshot,
@@ -1062,7 +1062,7 @@ impl Behaviour for TrafficControl {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use simulator::world::presets;
+    use world::presets;
 
     #[test]
     fn goals_name_track_nodes_and_count_robots() {

@@ -36,7 +36,7 @@ fn main() -> std::io::Result<()> {
         write(&root, "firmware_link", &name, &input)?;
     }
 
-    let worlds = Path::new(env!("CARGO_MANIFEST_DIR")).join("../simulator/worlds");
+    let worlds = Path::new(env!("CARGO_MANIFEST_DIR")).join("../world/worlds");
     for entry in std::fs::read_dir(worlds)? {
         let path = entry?.path();
         let name = path.file_stem().unwrap_or_default().to_string_lossy();

@@ -39,7 +39,7 @@ mod tests {
 
     #[test]
     fn the_shipped_worlds_parse() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../simulator/worlds");
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../world/worlds");
         let mut n = 0;
         for entry in std::fs::read_dir(dir).unwrap() {
             let text = std::fs::read_to_string(entry.unwrap().path()).unwrap();

@@ -10,7 +10,8 @@ pub mod runtime;
 pub mod serve;
 pub mod sim;
 pub mod spec;
-pub mod world;
+/// The physics-free world (tracks, graph, world files, presets), from the `world` crate.
+pub use ::world;
 
 pub use sim::{BodyFault, SimConfig, Simulation};
 pub use spec::RobotSpec;

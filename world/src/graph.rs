@@ -162,7 +162,7 @@ impl TrackGraph {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::track::{EdgeSpec, Node};
+    use crate::track::{EdgeSpec, Node};
 
     /// A loop a–b–c–d–a of four 1 m sides with a 0.5 m spur b–e.
     fn square() -> Track {

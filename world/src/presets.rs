@@ -1,4 +1,4 @@
-//! Built-in worlds: the example files in `simulator/worlds/` compiled in, and a generator of
+//! Built-in worlds: the example files in `world/worlds/` compiled in, and a generator of
 //! warehouse grids of any size for large-fleet benchmarks.
 
 use nalgebra::Point2;
@@ -18,12 +18,12 @@ pub const GRID_MARGIN_M: f64 = 0.2;
 pub const GRID_MAX_SIDE: usize = 400;
 
 const PRESETS: &[(&str, &str)] = &[
-    ("oval", include_str!("../../worlds/oval.toml")),
-    ("push", include_str!("../../worlds/push.toml")),
-    ("ring", include_str!("../../worlds/ring.toml")),
-    ("junction", include_str!("../../worlds/junction.toml")),
-    ("grid", include_str!("../../worlds/grid.toml")),
-    ("open", include_str!("../../worlds/open.toml")),
+    ("oval", include_str!("../worlds/oval.toml")),
+    ("push", include_str!("../worlds/push.toml")),
+    ("ring", include_str!("../worlds/ring.toml")),
+    ("junction", include_str!("../worlds/junction.toml")),
+    ("grid", include_str!("../worlds/grid.toml")),
+    ("open", include_str!("../worlds/open.toml")),
 ];
 
 /// Names accepted by [`preset`]: `oval`, `push`, `ring`, `junction`, `grid`, `open`.
@@ -170,9 +170,9 @@ mod tests {
     use std::f64::consts::PI;
 
     use super::*;
-    use crate::world::graph::{NodeKind, TrackGraph};
-    use crate::world::track::Surface;
-    use crate::world::{GRAVITY_MPS2, ROBOT_RADIUS_M};
+    use crate::graph::{NodeKind, TrackGraph};
+    use crate::track::Surface;
+    use crate::{GRAVITY_MPS2, ROBOT_RADIUS_M};
 
     fn load(name: &str) -> World {
         let text = preset_text(name).expect("known preset");

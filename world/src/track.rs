@@ -1111,7 +1111,7 @@ mod tests {
         // The grid preset is left out to keep the test quick: its straight edges take the
         // same path as the straights here.
         for name in ["oval", "push", "junction"] {
-            let w = crate::world::presets::preset(name).expect("preset parses");
+            let w = crate::presets::preset(name).expect("preset parses");
             let mut x = 0.0;
             while x < w.arena.width_m {
                 let mut y = 0.0;

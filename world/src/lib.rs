@@ -4,6 +4,8 @@
 //! Coordinates are metres on the floor, x to the right and y up (seen from above), headings in
 //! radians counter-clockwise from +x.
 
+#![warn(missing_docs)]
+
 pub mod file;
 pub mod graph;
 pub mod presets;

@@ -486,7 +486,7 @@ pub fn load(path: impl AsRef<Path>) -> Result<World, WorldError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world::track::Surface;
+    use crate::track::Surface;
 
     const GOOD: &str = r#"name = "t"
 description = "two nodes"
