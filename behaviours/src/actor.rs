@@ -9,6 +9,8 @@ use actix::prelude::*;
 use robot_actor::RobotEventKind;
 
 use crate::api::{Behaviour, Intent, LocalisationEvent, Verdict, WorldSnapshot};
+use crate::event::Event;
+use crate::team::Team;
 
 /// The experiment starts.
 #[derive(Message)]
@@ -23,7 +25,7 @@ pub struct Snapshot(pub WorldSnapshot);
 /// A robot event, with the latest snapshot.
 #[derive(Message)]
 #[rtype(result = "Result<Reply, Panicked>")]
-pub struct Event {
+pub struct FromRobot {
     /// Robot id.
     pub robot: u16,
     /// What happened.
@@ -67,30 +69,143 @@ pub struct Reply {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Panicked(pub String);
 
+/// A behaviour with its [`Team`]: calls its hooks, keeps the team's books on what goes in and
+/// out, and calls nothing more once it has a verdict. [`BehaviourActor`] and
+/// [`crate::testing::Harness`] both drive a behaviour through it.
+pub struct Runner<B: Behaviour + ?Sized = dyn Behaviour> {
+    behaviour: Box<B>,
+    team: Team,
+    verdict: Option<Verdict>,
+}
+
+impl<B: Behaviour + ?Sized> Runner<B> {
+    /// Wraps a behaviour; its team is formed from the robots of the first snapshot.
+    pub fn new(behaviour: Box<B>) -> Self {
+        let team = Team::new([], behaviour.held_policy());
+        Self {
+            behaviour,
+            team,
+            verdict: None,
+        }
+    }
+
+    /// The team's books.
+    pub fn team(&self) -> &Team {
+        &self.team
+    }
+
+    /// The behaviour.
+    pub fn behaviour(&self) -> &B {
+        &self.behaviour
+    }
+
+    /// The verdict, once given.
+    pub fn verdict(&self) -> Option<&Verdict> {
+        self.verdict.as_ref()
+    }
+
+    /// The experiment starts.
+    pub fn start(&mut self, world: &WorldSnapshot) -> Reply {
+        self.team = Team::new(
+            world.robots.iter().map(|r| r.id),
+            self.behaviour.held_policy(),
+        );
+        self.team.observe(world);
+        self.call(|b, team| b.start(world, team))
+    }
+
+    /// A new snapshot; held moves under `HeldPolicy::Retry` go out again first.
+    pub fn snapshot(&mut self, world: &WorldSnapshot) -> Reply {
+        if self.verdict.is_some() {
+            return Reply::default();
+        }
+        self.team.observe(world);
+        let retries = self.team.retries();
+        let mut reply = self.call(|b, team| b.on_snapshot(world, team));
+        if !retries.is_empty() {
+            reply.intents.splice(0..0, retries);
+        }
+        reply
+    }
+
+    /// A robot's event.
+    pub fn event(&mut self, robot: u16, event: &Event, world: &WorldSnapshot) -> Reply {
+        if self.verdict.is_some() {
+            return Reply::default();
+        }
+        if !self.team.event(robot, event) {
+            return Reply::default();
+        }
+        self.call(|b, team| b.on_event(robot, event, world, team))
+    }
+
+    /// Intents the supervisor held back, with its reasons.
+    pub fn held(&mut self, held: &[(Intent, String)], world: &WorldSnapshot) -> Reply {
+        if self.verdict.is_some() {
+            return Reply::default();
+        }
+        let tell: Vec<&(Intent, String)> = held
+            .iter()
+            .filter(|(intent, reason)| self.team.held(intent, reason, world.time))
+            .collect();
+        self.call(|b, team| {
+            let mut out = Vec::new();
+            for (intent, reason) in tell {
+                out.extend(b.on_held(intent, reason, world, team));
+            }
+            out
+        })
+    }
+
+    /// A robot was found lost or re-localised.
+    pub fn localised(
+        &mut self,
+        robot: u16,
+        event: &LocalisationEvent,
+        world: &WorldSnapshot,
+    ) -> Reply {
+        if self.verdict.is_some() {
+            return Reply::default();
+        }
+        if matches!(event, LocalisationEvent::Lost { .. }) {
+            self.team.lost(robot);
+        }
+        self.call(|b, team| b.on_localisation(robot, event, world, team))
+    }
+
+    fn call(&mut self, f: impl FnOnce(&mut B, &mut Team) -> Vec<Intent>) -> Reply {
+        if self.verdict.is_some() {
+            return Reply::default();
+        }
+        let intents = f(&mut self.behaviour, &mut self.team);
+        self.verdict = self
+            .team
+            .verdict()
+            .cloned()
+            .or_else(|| self.behaviour.verdict());
+        Reply {
+            intents: self.team.outgoing(intents),
+            verdict: self.verdict.clone(),
+        }
+    }
+}
+
 /// Runs one behaviour.
 pub struct BehaviourActor {
-    behaviour: Box<dyn Behaviour>,
+    runner: Runner,
 }
 
 impl BehaviourActor {
     /// Wraps a behaviour.
     pub fn new(behaviour: Box<dyn Behaviour>) -> Self {
-        Self { behaviour }
+        Self {
+            runner: Runner::new(behaviour),
+        }
     }
 
-    fn guarded(
-        &mut self,
-        f: impl FnOnce(&mut dyn Behaviour) -> Vec<Intent>,
-    ) -> Result<Reply, Panicked> {
-        let b = &mut self.behaviour;
-        catch_unwind(AssertUnwindSafe(|| {
-            let intents = f(b.as_mut());
-            Reply {
-                intents,
-                verdict: b.verdict(),
-            }
-        }))
-        .map_err(|payload| {
+    fn guarded(&mut self, f: impl FnOnce(&mut Runner) -> Reply) -> Result<Reply, Panicked> {
+        let runner = &mut self.runner;
+        catch_unwind(AssertUnwindSafe(|| f(runner))).map_err(|payload| {
             let text = payload
                 .downcast_ref::<&str>()
                 .map(|s| s.to_string())
@@ -108,40 +223,35 @@ impl Actor for BehaviourActor {
 impl Handler<Start> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
     fn handle(&mut self, msg: Start, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|b| b.start(&msg.0))
+        self.guarded(|r| r.start(&msg.0))
     }
 }
 
 impl Handler<Snapshot> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
     fn handle(&mut self, msg: Snapshot, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|b| b.on_snapshot(&msg.0))
+        self.guarded(|r| r.snapshot(&msg.0))
     }
 }
 
-impl Handler<Event> for BehaviourActor {
+impl Handler<FromRobot> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: Event, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|b| b.on_event(msg.robot, &msg.kind, &msg.world))
+    fn handle(&mut self, msg: FromRobot, _: &mut Context<Self>) -> Self::Result {
+        let event = Event::from_robot(&msg.kind);
+        self.guarded(|r| r.event(msg.robot, &event, &msg.world))
     }
 }
 
 impl Handler<Held> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
     fn handle(&mut self, msg: Held, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|b| {
-            let mut out = Vec::new();
-            for (intent, reason) in &msg.held {
-                out.extend(b.on_held(intent, reason, &msg.world));
-            }
-            out
-        })
+        self.guarded(|r| r.held(&msg.held, &msg.world))
     }
 }
 
 impl Handler<Localised> for BehaviourActor {
     type Result = Result<Reply, Panicked>;
     fn handle(&mut self, msg: Localised, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|b| b.on_localisation(msg.robot, &msg.event, &msg.world))
+        self.guarded(|r| r.localised(msg.robot, &msg.event, &msg.world))
     }
 }

@@ -5,9 +5,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
+use protocol::packets::Side;
 use protocol::RobotState;
-use robot_actor::{MoveCommand, Pose, RobotEventKind};
+use robot_actor::{MoveCommand, Pose};
 use world::Track;
+
+use crate::event::Event;
+use crate::team::{HeldPolicy, Team};
 
 /// How well the world model knows a robot's pose: one standard deviation of its position (along
 /// the worst direction) and of its heading. It grows with the distance driven and the angle
@@ -59,13 +63,23 @@ pub struct RobotView {
     pub state: RobotState,
     /// Moves the host is still waiting for.
     pub pending_moves: usize,
-    /// Where on the track graph it is: (track edge, offset along it in metres, distance from the
-    /// tape in metres), if it is near the tape.
-    pub on_track: Option<(usize, f64, f64)>,
+    /// Where on the tape its line sensor is, if it is over the tape.
+    pub on_track: Option<TrackPosition>,
     /// How well the pose is known.
     pub uncertainty: PoseUncertainty,
     /// Whether the pose is trusted.
     pub localisation: Localisation,
+}
+
+/// A place on the tape: which track edge, how far along it, how far beside it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TrackPosition {
+    /// Track edge index (`world::Track::edges`).
+    pub edge: usize,
+    /// Distance along the edge from its start node, metres.
+    pub along_m: f64,
+    /// Distance from the tape's centre line, metres.
+    pub offset_m: f64,
 }
 
 /// A sighting of one robot by another (thesis 7.2).
@@ -75,8 +89,8 @@ pub struct Encounter {
     pub observer: u16,
     /// Whom.
     pub seen: u16,
-    /// With which receiver (0 front, 1 rear).
-    pub side: u8,
+    /// With which receiver.
+    pub side: Side,
     /// Estimated heading of the seen robot relative to the observer's, degrees.
     pub relative_heading_deg: i16,
     /// Estimated range, millimetres.
@@ -98,6 +112,13 @@ pub struct WorldSnapshot {
     pub arena: (f64, f64),
 }
 
+impl RobotView {
+    /// Whether both wheels read zero speed.
+    pub fn resting(&self) -> bool {
+        self.state.wheels.left_mps == 0.0 && self.state.wheels.right_mps == 0.0
+    }
+}
+
 impl WorldSnapshot {
     /// The robot with `id`.
     pub fn robot(&self, id: u16) -> Option<&RobotView> {
@@ -114,6 +135,8 @@ pub enum Intent {
         robot: u16,
         /// The move.
         command: MoveCommand,
+        /// The behaviour's word for the move, returned in its `Event::MoveFinished`.
+        tag: u32,
     },
     /// Follow the line at a speed, or stop following (`None`).
     FollowLine {
@@ -184,6 +207,15 @@ pub struct Verdict {
 }
 
 impl Verdict {
+    /// A success or a failure, as `success` says.
+    pub fn new(success: bool, summary: impl Into<String>) -> Self {
+        Self {
+            success,
+            summary: summary.into(),
+            metrics: Vec::new(),
+        }
+    }
+
     /// A success.
     pub fn success(summary: impl Into<String>) -> Self {
         Self {
@@ -209,39 +241,78 @@ impl Verdict {
     }
 }
 
+impl Intent {
+    /// `commands` for `robot`, in order, each tagged `tag`.
+    pub fn moves(
+        robot: u16,
+        commands: impl IntoIterator<Item = MoveCommand>,
+        tag: u32,
+    ) -> Vec<Intent> {
+        commands
+            .into_iter()
+            .map(|command| Intent::Move {
+                robot,
+                command,
+                tag,
+            })
+            .collect()
+    }
+}
+
 /// A behaviour: decision logic over snapshots and events, testable without actors.
+///
+/// Every hook gets the latest snapshot and the [`Team`], which keeps the books (outstanding
+/// moves, follow speeds, held moves) and takes the verdict; each returns intents for the
+/// supervisor's safety check. Once a verdict is given the hooks are no longer called.
 pub trait Behaviour: Send + 'static {
     /// First intents, given the world as the experiment starts.
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent>;
-    /// Intents for a new snapshot.
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent>;
-    /// Intents for a robot event (a move finished, an encounter, a lost line, …).
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent>;
+    /// Intents for a new snapshot (every 100 ms).
+    fn on_snapshot(&mut self, _world: &WorldSnapshot, _team: &mut Team) -> Vec<Intent> {
+        Vec::new()
+    }
+    /// Intents for a robot's event (a move finished, a sighting, a lost line, …).
     fn on_event(
         &mut self,
         _robot: u16,
-        _event: &RobotEventKind,
+        _event: &Event,
         _world: &WorldSnapshot,
+        _team: &mut Team,
     ) -> Vec<Intent> {
         Vec::new()
     }
-    /// Intents for an intent of this behaviour that the supervisor's safety check held back
-    /// (it never reached the robot); a behaviour that counts its moves must count this one out.
-    fn on_held(&mut self, _intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+    /// Intents for an intent the supervisor's safety check held back (it never reached the
+    /// robot). Moves come here only under [`HeldPolicy::Tell`].
+    fn on_held(
+        &mut self,
+        _intent: &Intent,
+        _reason: &str,
+        _world: &WorldSnapshot,
+        _team: &mut Team,
+    ) -> Vec<Intent> {
         Vec::new()
     }
     /// Intents for a robot that was found lost or re-localised. When it is lost the supervisor
-    /// has already stopped it (its queued moves end `Aborted`) and holds its intents until
-    /// `Found`; a behaviour that drives it must plan it again from its pose then.
+    /// has already stopped it (the team has dropped its outstanding moves) and holds its intents
+    /// until `Found`; a behaviour that drives it must plan it again from its pose then.
     fn on_localisation(
         &mut self,
         _robot: u16,
         _event: &LocalisationEvent,
         _world: &WorldSnapshot,
+        _team: &mut Team,
     ) -> Vec<Intent> {
         Vec::new()
     }
-    /// The verdict once the behaviour is done; `None` while it runs.
-    fn verdict(&self) -> Option<Verdict>;
+    /// What the team does with a move the safety check held back.
+    fn held_policy(&self) -> HeldPolicy {
+        HeldPolicy::Tell
+    }
+    /// A verdict judged from the behaviour's own state, asked after every hook; `None` while it
+    /// runs. A behaviour may instead give it through [`Team::finish`] or [`Team::fail`].
+    fn verdict(&self) -> Option<Verdict> {
+        None
+    }
 }
 
 /// Options every behaviour is built from.

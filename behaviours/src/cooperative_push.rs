@@ -21,16 +21,18 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use nalgebra::{Point2, Vector2};
-use protocol::packets::MoveOutcome;
-use robot_actor::{Pose, RobotEventKind};
+use protocol::packets::Side;
+use robot_actor::Pose;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
+use crate::event::Event;
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
-use crate::moves::Route;
+use crate::moves::Manoeuvre;
+use crate::team::{HeldPolicy, Team};
 use crate::track_loop::TrackLoop;
 
 /// Half the body length, metres.
-const HALF_LEN: f64 = 0.024;
+const HALF_LEN: f64 = world::robot::LENGTH_M / 2.0;
 /// Space between a waiting pusher's front and the box, metres.
 const LANE_GAP: f64 = 0.012;
 /// The approach lane runs this far below the slots: a robot turning there clears one waiting in
@@ -53,7 +55,7 @@ const REJOIN_GAP: f64 = 0.16;
 const BACK_MPS: f32 = 0.03;
 const BACK_OVERSHOOT: f64 = 0.002;
 /// Line sensor ahead of the robot's centre, metres.
-const SENSOR_AHEAD: f64 = 0.016;
+const SENSOR_AHEAD: f64 = world::robot::LINE_SENSOR_AHEAD_M;
 /// Following speed with an unknown obstacle close ahead.
 const CREEP_MPS: f32 = 0.03;
 /// Speed of manoeuvres off the tape, and of the push.
@@ -106,12 +108,6 @@ impl Site {
 
 #[derive(Clone, Debug, Default)]
 struct Bot {
-    /// Following speed last sent; `None` when not following.
-    following: Option<f32>,
-    /// Moves sent and not yet finished.
-    outstanding: usize,
-    /// A move ended other than completed.
-    aborted: bool,
     /// Loop coordinate at the last snapshot while lapping.
     last_s: Option<f64>,
     /// Metres lapped since rejoining.
@@ -201,48 +197,21 @@ impl CooperativePush {
                 .with("pushes", f64::from(self.pushes))
                 .with("phase_reached", self.phase as u8 as f64),
         );
-        self.bots
-            .keys()
-            .map(|&robot| Intent::Stop { robot })
-            .collect()
+        Vec::new()
     }
 
-    fn follow(&mut self, id: u16, speed: Option<f32>) -> Option<Intent> {
-        let bot = self.bots.get_mut(&id)?;
-        if bot.following == speed {
-            return None;
-        }
-        bot.following = speed;
-        Some(Intent::FollowLine { robot: id, speed })
-    }
-
-    fn send(&mut self, id: u16, route: Route) -> Vec<Intent> {
-        if let Some(bot) = self.bots.get_mut(&id) {
-            bot.outstanding += route.moves.len();
-            bot.following = None;
-        }
-        route
-            .moves
-            .into_iter()
-            .map(|command| Intent::Move { robot: id, command })
-            .collect()
-    }
-
-    fn idle(&self, id: u16) -> bool {
-        self.bots.get(&id).is_some_and(|b| b.outstanding == 0)
+    /// The route's moves, tagged with the phase they belong to.
+    fn send(&self, id: u16, route: Manoeuvre) -> Vec<Intent> {
+        Intent::moves(id, route.moves, self.phase as u32)
     }
 
     /// Along-track distance to the nearest robot ahead of `me`, sensor to sensor.
     fn gap_ahead(&self, me: &RobotView, world: &WorldSnapshot) -> f64 {
-        let Some(mine) = me.on_track.map(|(e, o, _)| self.track.coordinate(e, o)) else {
-            return f64::INFINITY;
-        };
         world
             .robots
             .iter()
             .filter(|o| o.id != me.id)
-            .filter_map(|o| o.on_track.map(|(e, off, _)| self.track.coordinate(e, off)))
-            .map(|s| self.track.ahead(mine, s))
+            .filter_map(|o| self.track.gap(me, o, true))
             .fold(f64::INFINITY, f64::min)
     }
 
@@ -287,14 +256,14 @@ impl CooperativePush {
     /// From `pose` on the tape behind the box: down to an approach lane below the slots, along it,
     /// then a quarter turn and straight up into the slot. Arriving sideways along the slots'
     /// line would swing the 48 mm body into the robot already waiting there.
-    fn to_slot(&self, id: u16, pose: Pose, site: &Site, back_up: f64) -> Route {
+    fn to_slot(&self, id: u16, pose: Pose, site: &Site, back_up: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along) - back_up;
         let approach = self.lane() - APPROACH_BELOW;
         let down = site.at(along_now, approach);
         let below = site.at(self.slot(id), approach);
         let slot = site.at(self.slot(id), self.lane());
-        Route::from(pose, MANOEUVRE_MPS)
+        Manoeuvre::from(pose, MANOEUVRE_MPS)
             .straight(-back_up)
             .to(down.x, down.y)
             .to(below.x, below.y)
@@ -308,7 +277,6 @@ impl CooperativePush {
             return Vec::new();
         };
         bot.backing = Some(Duration::ZERO);
-        bot.following = None;
         vec![Intent::WheelSpeeds {
             robot: id,
             left: -BACK_MPS,
@@ -325,7 +293,7 @@ impl CooperativePush {
         if let Some(bot) = self.bots.get_mut(&id) {
             bot.backing = None;
         }
-        let route = Route::from(view.pose, MANOEUVRE_MPS)
+        let route = Manoeuvre::from(view.pose, MANOEUVRE_MPS)
             .straight(SENSOR_AHEAD + BACK_OVERSHOOT)
             .turn_to(Site::heading(site.along));
         let mut out = vec![Intent::Stop { robot: id }];
@@ -333,7 +301,7 @@ impl CooperativePush {
         out
     }
 
-    fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
@@ -367,25 +335,26 @@ impl CooperativePush {
         }) {
             return self.fail(format!("robot {id} backed up without finding the tape"));
         }
-        if let Some((id, _)) = self.bots.iter().find(|(_, b)| b.aborted) {
+        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
             return self.fail(format!("robot {id}: a manoeuvre was aborted"));
         }
         // Spacing while following: never run into the robot ahead.
         if matches!(self.phase, Phase::Approach | Phase::Gather | Phase::Lapping) {
             for view in &world.robots {
-                let Some(bot) = self.bots.get(&view.id) else {
+                if !self.bots.contains_key(&view.id) {
                     continue;
-                };
+                }
+                let following = team.following(view.id);
                 if Some(view.id) == self.finder && self.phase == Phase::Gather {
                     continue;
                 }
                 let gap = self.gap_ahead(view, world);
                 let mut want = if gap < STOP_GAP {
                     None
-                } else if gap > GO_GAP || bot.following.is_some() {
+                } else if gap > GO_GAP || following.is_some() {
                     Some(self.speed)
                 } else {
-                    bot.following
+                    following
                 };
                 // Something close ahead that is not a robot: creep, so that the first sighting
                 // at the shortest reach (15 mm) places it to within a few millimetres.
@@ -393,7 +362,10 @@ impl CooperativePush {
                 if gap > 0.15 && (2..=3).contains(&level) {
                     want = want.map(|v| v.min(CREEP_MPS));
                 }
-                out.extend(self.follow(view.id, want));
+                out.push(Intent::FollowLine {
+                    robot: view.id,
+                    speed: want,
+                });
             }
         }
         if matches!(self.phase, Phase::Approach | Phase::Lapping) {
@@ -413,9 +385,7 @@ impl CooperativePush {
                 let settled = world.robots.iter().all(|r| {
                     let w = r.state.wheels;
                     let (l, rr) = (w.left_mps, w.right_mps);
-                    self.bots.get(&r.id).is_none_or(|b| b.following.is_none())
-                        && l.abs() < 0.005
-                        && rr.abs() < 0.005
+                    team.following(r.id).is_none() && l.abs() < 0.005 && rr.abs() < 0.005
                 });
                 if settled
                     && world.time.saturating_sub(self.phase_since) > Duration::from_millis(300)
@@ -432,7 +402,7 @@ impl CooperativePush {
                 }
             }
             Phase::FinderToSlot => {
-                if self.finder.is_some_and(|f| self.idle(f)) {
+                if self.finder.is_some_and(|f| team.idle(f)) {
                     match (self.helper(), self.site) {
                         (Some(h), Some(site)) => {
                             if let Some(view) = world.robot(h) {
@@ -446,12 +416,12 @@ impl CooperativePush {
                 }
             }
             Phase::HelperToSlot => {
-                if self.helper().is_some_and(|h| self.idle(h)) {
+                if self.helper().is_some_and(|h| team.idle(h)) {
                     out.extend(self.start_push(world));
                 }
             }
             Phase::Push => {
-                if self.bots.keys().all(|id| self.idle(*id)) {
+                if team.all_idle() {
                     self.push_time = Some(world.time.saturating_sub(self.push_started));
                     // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
                     // over the tape it stood on; wheels that only slipped did not.
@@ -508,7 +478,7 @@ impl CooperativePush {
                         continue;
                     };
                     bot.lap_odometer_m.get_or_insert(odometer_m);
-                    let s = view.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
+                    let s = self.track.position(view);
                     if let (Some(before), Some(after)) = (bot.last_s, s) {
                         bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
                     }
@@ -555,11 +525,7 @@ impl CooperativePush {
                         v = v.with("push_time_s", t.as_secs_f64());
                     }
                     self.verdict = Some(v);
-                    out = self
-                        .bots
-                        .keys()
-                        .map(|&robot| Intent::Stop { robot })
-                        .collect();
+                    out.clear();
                 }
             }
         }
@@ -578,7 +544,7 @@ impl CooperativePush {
         let mut out = Vec::new();
         for id in ids {
             if let Some(view) = world.robot(id) {
-                let route = Route::from(view.pose, PUSH_MPS).straight(LANE_GAP + self.push_m);
+                let route = Manoeuvre::from(view.pose, PUSH_MPS).straight(LANE_GAP + self.push_m);
                 out.extend(self.send(id, route));
             }
         }
@@ -612,93 +578,72 @@ impl CooperativePush {
         }
         self.finder = Some(robot);
         self.enter(Phase::Gather, world);
-        self.follow(robot, None).into_iter().collect()
+        vec![Intent::FollowLine { robot, speed: None }]
     }
 }
 
 impl Behaviour for CooperativePush {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
         self.phase_since = world.time;
-        self.step(world)
+        self.step(world, team)
     }
 
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
-        self.step(world)
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.step(world, team)
     }
 
     fn on_event(
         &mut self,
         robot: u16,
-        event: &RobotEventKind,
+        event: &Event,
         world: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
         match event {
-            RobotEventKind::Obstacle(o) if o.side == 0 && o.power_level == 1 => {
+            Event::Obstacle(o) if o.side == Side::Front && o.is_close() => {
                 self.found_box(robot, world)
             }
-            RobotEventKind::MoveFinished { outcome, .. } => {
-                let Some(bot) = self.bots.get_mut(&robot) else {
-                    return Vec::new();
-                };
-                bot.outstanding = bot.outstanding.saturating_sub(1);
-                if *outcome != MoveOutcome::Completed {
-                    bot.aborted = true;
-                }
-                // Finishing a rejoin hands the robot back to the tape.
-                if bot.outstanding == 0 {
-                    let speed = Some(self.speed);
-                    match self.phase {
-                        Phase::FinderRejoins if Some(robot) == self.finder => {
-                            let out: Vec<Intent> = self.follow(robot, speed).into_iter().collect();
-                            let next = if self.helper().is_some() {
-                                Phase::HelperWaits
-                            } else {
-                                Phase::Lapping
-                            };
-                            self.enter(next, world);
-                            return out;
-                        }
-                        Phase::HelperRejoins if Some(robot) == self.helper() => {
-                            let out: Vec<Intent> = self.follow(robot, speed).into_iter().collect();
-                            self.enter(Phase::Lapping, world);
-                            return out;
-                        }
-                        _ => {}
+            // Finishing a rejoin hands the robot back to the tape.
+            Event::MoveFinished { .. } if team.idle(robot) => {
+                let follow = vec![Intent::FollowLine {
+                    robot,
+                    speed: Some(self.speed),
+                }];
+                match self.phase {
+                    Phase::FinderRejoins if Some(robot) == self.finder => {
+                        let next = if self.helper().is_some() {
+                            Phase::HelperWaits
+                        } else {
+                            Phase::Lapping
+                        };
+                        self.enter(next, world);
+                        follow
                     }
+                    Phase::HelperRejoins if Some(robot) == self.helper() => {
+                        self.enter(Phase::Lapping, world);
+                        follow
+                    }
+                    _ => Vec::new(),
                 }
-                Vec::new()
             }
-            RobotEventKind::Line(false)
-                if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) =>
-            {
+            Event::LineFound if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) => {
                 self.on_tape(robot, world)
             }
-            RobotEventKind::Line(false) if self.phase == Phase::Push => {
+            Event::LineFound if self.phase == Phase::Push => {
                 if let Some(b) = self.bots.get_mut(&robot) {
                     b.crossed_tape = true;
                 }
                 Vec::new()
             }
-            RobotEventKind::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
         }
     }
 
-    fn on_held(&mut self, intent: &Intent, reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
-        // A manoeuvre planned around the box is not improvised when the supervisor refuses a
-        // step of it: the experiment stops with the reason.
-        match intent {
-            Intent::Move { robot, .. } => self.fail(format!(
-                "robot {robot}: the supervisor held back a manoeuvre: {reason}"
-            )),
-            _ => Vec::new(),
-        }
+    /// A manoeuvre planned around the box is not improvised when the supervisor refuses a step
+    /// of it: the experiment stops with the reason.
+    fn held_policy(&self) -> HeldPolicy {
+        HeldPolicy::Fail
     }
 
     fn verdict(&self) -> Option<Verdict> {

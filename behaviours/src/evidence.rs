@@ -109,6 +109,13 @@ impl Odometer {
         self.robots.get(&id).map_or(0.0, |r| r.turned_rad)
     }
 
+    /// The least turning any of `ids` measured, degrees (infinite for no robot).
+    pub fn least_turn_deg(&self, ids: impl IntoIterator<Item = u16>) -> f64 {
+        ids.into_iter()
+            .map(|id| self.turned_rad(id).to_degrees())
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// The first robot found stalled, if any.
     pub fn stall(&self) -> Option<Stall> {
         self.robots.values().find_map(|r| r.stall)

@@ -15,14 +15,16 @@ use std::collections::BTreeMap;
 use std::f64::consts::PI;
 use std::time::Duration;
 
-use robot_actor::RobotEventKind;
+use protocol::packets::Side;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, LocalisationEvent, Verdict, WorldSnapshot};
+use crate::event::Event;
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
+use crate::team::Team;
 use crate::track_loop::TrackLoop;
 
 /// Body length: the along-track gap between two robots' sensors minus this is the free space.
-const BODY_M: f64 = 0.048;
+const BODY_M: f64 = world::robot::LENGTH_M;
 /// A robot ahead closer than this (sensor to sensor) stops the follower.
 const STOP_GAP_M: f64 = 0.09;
 /// Slowest commanded speed: below it the wheels' dead band makes following erratic.
@@ -57,7 +59,6 @@ pub struct LineFollow {
     followers: BTreeMap<u16, Follower>,
     min_gap_m: f64,
     odometer: Odometer,
-    verdict: Option<Verdict>,
 }
 
 impl LineFollow {
@@ -96,7 +97,6 @@ impl LineFollow {
             followers,
             min_gap_m: f64::INFINITY,
             odometer: Odometer::new(),
-            verdict: None,
         })
     }
 
@@ -105,13 +105,11 @@ impl LineFollow {
         let Some(me) = world.robot(id) else {
             return f64::INFINITY;
         };
-        let mine = me.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
         let mut gap = f64::INFINITY;
         for other in world.robots.iter().filter(|o| o.id != id) {
-            let theirs = other.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
-            let d = match (mine, theirs) {
-                (Some(a), Some(b)) => self.track.ahead(a, b),
-                _ => {
+            let d = match self.track.gap(me, other, true) {
+                Some(d) => d,
+                None => {
                     let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
                     let bearing = dy.atan2(dx) - me.pose.theta;
                     if bearing.sin().atan2(bearing.cos()).abs() < AHEAD_CONE_RAD {
@@ -131,23 +129,19 @@ impl LineFollow {
         gap
     }
 
-    /// Ends the run as failed and stops every robot.
-    fn fail(&mut self, why: String) -> Vec<Intent> {
+    /// Ends the run as failed, with the laps and distances reached.
+    fn fail(&self, why: String, team: &mut Team) {
         let fewest = self
             .followers
             .values()
             .map(|f| f.progress_m / self.track.length_m())
             .fold(f64::INFINITY, f64::min);
         let least_m = self.odometer.least_m(self.followers.keys().copied());
-        self.verdict = Some(
+        team.finish(
             Verdict::failure(why)
                 .with("laps_min", fewest)
                 .with("least_encoder_distance_m", least_m),
         );
-        self.followers
-            .keys()
-            .map(|&robot| Intent::Stop { robot })
-            .collect()
     }
 
     fn speed_for(&self, cruise: f64, gap: f64) -> f64 {
@@ -163,17 +157,15 @@ impl LineFollow {
 }
 
 impl Behaviour for LineFollow {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        self.on_snapshot(world)
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.on_snapshot(world, team)
     }
 
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
-            return self.fail(stall.to_string());
+            self.fail(stall.to_string(), team);
+            return Vec::new();
         }
         let mut intents = Vec::new();
         let ids: Vec<u16> = self.followers.keys().copied().collect();
@@ -183,7 +175,7 @@ impl Behaviour for LineFollow {
             let Some(view) = world.robot(id) else {
                 continue;
             };
-            let s = view.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
+            let s = self.track.position(view);
             let length = self.track.length_m();
             let laps = self.laps;
             let target = {
@@ -240,16 +232,13 @@ impl Behaviour for LineFollow {
                     self.min_gap_m * 1e3
                 )),
             };
-            self.verdict = Some(
+            team.finish(
                 verdict
                     .with("laps_min", fewest)
                     .with("least_encoder_distance_m", least_m)
                     .with("min_gap_m", self.min_gap_m)
                     .with("line_losses", f64::from(losses)),
             );
-            for id in self.followers.keys() {
-                intents.push(Intent::Stop { robot: *id });
-            }
         }
         intents
     }
@@ -257,20 +246,21 @@ impl Behaviour for LineFollow {
     fn on_event(
         &mut self,
         robot: u16,
-        event: &RobotEventKind,
+        event: &Event,
         world: &WorldSnapshot,
+        _: &mut Team,
     ) -> Vec<Intent> {
         let Some(f) = self.followers.get_mut(&robot) else {
             return Vec::new();
         };
         match event {
-            // Front receiver (side 0) only: a robot behind is not in the way.
-            RobotEventKind::Encounter(e) if e.side == 0 => {
-                f.ir = Some((world.time, f64::from(e.range_mm) * 1e-3));
+            // Front receiver only: a robot behind is not in the way.
+            Event::Sighting(seen) if seen.side == Side::Front => {
+                f.ir = Some((world.time, f64::from(seen.range_mm) * 1e-3));
             }
-            RobotEventKind::Line(true) => f.line_losses += 1,
+            Event::LineLost => f.line_losses += 1,
             // A robot back from a link loss has stopped following; it is sent its speed again.
-            RobotEventKind::Connected(_) => f.sent = 0.0,
+            Event::Connected => f.sent = 0.0,
             _ => {}
         }
         Vec::new()
@@ -281,6 +271,7 @@ impl Behaviour for LineFollow {
         robot: u16,
         event: &LocalisationEvent,
         _world: &WorldSnapshot,
+        _: &mut Team,
     ) -> Vec<Intent> {
         // A lost robot was stopped and its follow commands held; once found it is sent its
         // speed again at the next snapshot.
@@ -289,17 +280,12 @@ impl Behaviour for LineFollow {
         }
         Vec::new()
     }
-
-    fn verdict(&self) -> Option<Verdict> {
-        self.verdict.clone()
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::api::RobotView;
-    use robot_actor::Pose;
+    use crate::testing::{world as snapshot, Harness};
     use std::sync::Arc;
     use world::presets;
 
@@ -311,43 +297,36 @@ mod tests {
         }
     }
 
-    fn at(id: u16, x: f64, y: f64, theta: f64, track: &world::Track) -> RobotView {
-        let n = track.nearest(nalgebra::Point2::new(x, y)).unwrap();
-        RobotView {
-            id,
-            connected: true,
-            pose: Pose { x, y, theta },
-            odometry: Pose { x, y, theta },
-            state: Default::default(),
-            pending_moves: 0,
-            on_track: Some((n.edge, n.offset_m, n.distance_m)),
-            ..Default::default()
-        }
-    }
-
     #[test]
     fn a_follower_slows_then_stops_behind_the_robot_ahead() {
         let c = cfg(vec![1, 2]);
         let track = Arc::clone(&c.track);
-        let mut b = LineFollow::new(&c).unwrap();
-        let snap = |x2: f64| WorldSnapshot {
-            time: Duration::ZERO,
-            robots: vec![at(1, 0.30, 0.15, 0.0, &track), at(2, x2, 0.15, 0.0, &track)],
-            encounters: vec![],
-            arena: (1.0, 0.6),
+        let mut h = Harness::new(LineFollow::new(&c).unwrap());
+        // Both on the oval's lower straight (y = 0.15), robot 2 ahead of robot 1.
+        let snap = |x2: f64| {
+            let on = |x: f64| track.nearest(nalgebra::Point2::new(x, 0.15)).unwrap();
+            let (a, b) = (on(0.30), on(x2));
+            snapshot()
+                .arena(1.0, 0.6)
+                .robot(1, 0.30, 0.15, 0.0)
+                .robot(2, x2, 0.15, 0.0)
+                .on_track(1, a.edge, a.offset_m)
+                .on_track(2, b.edge, b.offset_m)
+                .build()
         };
-        let far = b.start(&snap(0.70));
+        let far = h.start(&snap(0.70));
         assert!(far.contains(&Intent::FollowLine {
             robot: 1,
             speed: Some(0.15)
         }));
-        let near = b.on_snapshot(&snap(0.44));
+        let near = h.snapshot(&snap(0.44));
         let Some(Intent::FollowLine { speed: Some(v), .. }) = near.iter().find(|i| i.robot() == 1)
         else {
             panic!("robot 1 slows: {near:?}");
         };
         assert!(*v < 0.15 && *v > 0.0, "{v}");
-        let touching = b.on_snapshot(&snap(0.37));
+        assert_eq!(h.team().following(1), Some(*v));
+        let touching = h.snapshot(&snap(0.37));
         assert!(touching.contains(&Intent::FollowLine {
             robot: 1,
             speed: None

@@ -1,25 +1,17 @@
 //! Move sequences computed from poses: drive to a point, turn to a heading. Behaviours plan
 //! manoeuvres off the tape with these and hand them to the robots' own locomotion, either all at
-//! once ([`Route`], open-loop) or one move at a time from the robot's latest pose ([`Legs`]).
+//! once ([`Manoeuvre`], open-loop) or one move at a time from the robot's latest pose ([`Legs`]).
 
 use std::collections::VecDeque;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::PI;
 
 use robot_actor::{MoveCommand, Pose};
 
-/// Wraps an angle into (−π, π].
-pub fn wrap(a: f64) -> f64 {
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w == -PI {
-        PI
-    } else {
-        w
-    }
-}
+pub use world::wrap_angle as wrap;
 
 /// Moves and the pose they are meant to end at, built step by step from a start pose.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Route {
+pub struct Manoeuvre {
     /// The moves so far.
     pub moves: Vec<MoveCommand>,
     /// Where they end.
@@ -27,7 +19,7 @@ pub struct Route {
     speed_mps: f32,
 }
 
-impl Route {
+impl Manoeuvre {
     /// An empty route from `start`, driving and turning at `speed_mps`.
     pub fn from(start: Pose, speed_mps: f32) -> Self {
         Self {
@@ -236,7 +228,7 @@ mod tests {
 
     #[test]
     fn a_route_ends_where_it_says() {
-        let r = Route::from(
+        let r = Manoeuvre::from(
             Pose {
                 x: 0.0,
                 y: 0.0,

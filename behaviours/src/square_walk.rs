@@ -10,13 +10,16 @@
 //! the walk at once (see [`crate::evidence`]). The coordinator's report adds the ground truth.
 
 use std::collections::BTreeMap;
-use std::f64::consts::{FRAC_PI_2, PI, TAU};
+use std::f64::consts::FRAC_PI_2;
 
 use protocol::packets::MoveOutcome;
-use robot_actor::{MoveCommand, Pose, RobotEventKind};
+use robot_actor::{MoveCommand, Pose};
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
+use crate::event::Event;
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
+use crate::moves::wrap;
+use crate::team::Team;
 
 const SIDE_M: f32 = 0.1;
 const SPEED_MPS: f32 = 0.2;
@@ -26,6 +29,7 @@ const SPEED_MPS: f32 = 0.2;
 struct Walker {
     start: Pose,
     /// Moves finished, in plan order: leg `k` is a straight to corner `k + 1` then a quarter turn.
+    /// Each move's tag is its place in the current plan.
     done: usize,
     /// Moves the current plan expects in all.
     expected: usize,
@@ -41,10 +45,6 @@ pub struct SquareWalk {
     side_m: f32,
     walkers: BTreeMap<u16, Walker>,
     odometer: Odometer,
-}
-
-fn wrap(a: f64) -> f64 {
-    (a + PI).rem_euclid(TAU) - PI
 }
 
 impl SquareWalk {
@@ -76,9 +76,13 @@ impl SquareWalk {
     }
 
     fn moves(robot: u16, commands: Vec<MoveCommand>) -> Vec<Intent> {
-        commands
-            .into_iter()
-            .map(|command| Intent::Move { robot, command })
+        (0..)
+            .zip(commands)
+            .map(|(tag, command)| Intent::Move {
+                robot,
+                command,
+                tag,
+            })
             .collect()
     }
 
@@ -118,7 +122,7 @@ impl SquareWalk {
 }
 
 impl Behaviour for SquareWalk {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn start(&mut self, world: &WorldSnapshot, _: &mut Team) -> Vec<Intent> {
         self.odometer.observe(world);
         let mut intents = Vec::new();
         for r in &world.robots {
@@ -149,7 +153,7 @@ impl Behaviour for SquareWalk {
         intents
     }
 
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn on_snapshot(&mut self, world: &WorldSnapshot, _: &mut Team) -> Vec<Intent> {
         self.odometer.observe(world);
         for r in &world.robots {
             if let Some(w) = self.walkers.get_mut(&r.id) {
@@ -167,28 +171,29 @@ impl Behaviour for SquareWalk {
     fn on_event(
         &mut self,
         robot: u16,
-        event: &RobotEventKind,
+        event: &Event,
         world: &WorldSnapshot,
+        _: &mut Team,
     ) -> Vec<Intent> {
         let Some(w) = self.walkers.get(&robot).cloned() else {
             return Vec::new();
         };
         match event {
-            RobotEventKind::MoveFinished { outcome, .. } if !w.interrupted => {
+            Event::MoveFinished { tag, outcome } => {
                 let w = self.walkers.get_mut(&robot).expect("present");
                 match outcome {
-                    MoveOutcome::Completed => w.done += 1,
+                    MoveOutcome::Completed => w.done = *tag as usize + 1,
                     _ => w.failed = true,
                 }
                 Vec::new()
             }
-            RobotEventKind::LinkLost => {
+            Event::LinkLost => {
                 if let Some(w) = self.walkers.get_mut(&robot) {
                     w.interrupted = w.done < w.expected;
                 }
                 Vec::new()
             }
-            RobotEventKind::Connected(_) if w.interrupted => {
+            Event::Connected if w.interrupted => {
                 let Some(pose) = world.robot(robot).map(|r| r.pose) else {
                     return Vec::new();
                 };
@@ -282,27 +287,24 @@ impl Behaviour for SquareWalk {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::api::RobotView;
+    use crate::testing::{world as snapshot, Harness};
+    use std::f64::consts::{PI, TAU};
 
     fn world(poses: &[(u16, Pose)], pending: usize) -> WorldSnapshot {
-        WorldSnapshot {
-            time: std::time::Duration::ZERO,
-            robots: poses
-                .iter()
-                .map(|&(id, pose)| RobotView {
-                    id,
-                    connected: true,
-                    pose,
-                    odometry: pose,
-                    state: Default::default(),
-                    pending_moves: pending,
-                    on_track: None,
-                    ..Default::default()
-                })
-                .collect(),
-            encounters: Vec::new(),
-            arena: (1.0, 1.0),
-        }
+        poses
+            .iter()
+            .fold(snapshot(), |w, &(id, p)| {
+                w.robot(id, p.x, p.y, p.theta.to_degrees())
+                    .with(id, |r| r.pending_moves = pending)
+            })
+            .build()
+    }
+
+    fn walk_of(robots: &[u16]) -> Harness<SquareWalk> {
+        let mut h = Harness::new(SquareWalk::new(&BehaviourConfig::default()).unwrap());
+        let poses: Vec<(u16, Pose)> = robots.iter().map(|&id| (id, START)).collect();
+        h.start(&world(&poses, 0));
+        h
     }
 
     /// Where the test robot starts its square.
@@ -311,64 +313,58 @@ mod tests {
         y: 0.3,
         theta: 0.0,
     };
-    const DONE: RobotEventKind = RobotEventKind::MoveFinished {
-        id: 1,
-        outcome: MoveOutcome::Completed,
-    };
+
+    /// Every move of the square (tags 0 to 7) completes.
+    fn finish_all(h: &mut Harness<SquareWalk>, id: u16) {
+        for tag in 0..8 {
+            h.finish_move(id, tag, &world(&[], 0));
+        }
+    }
 
     /// Snapshots of robots 1 and 2 walking the square from `start`, corner by corner.
-    fn walk(b: &mut SquareWalk, start: Pose) {
+    fn walk(h: &mut Harness<SquareWalk>, start: Pose) {
         let mut p = start;
         for k in 0..4 {
-            let h = FRAC_PI_2 * f64::from(k);
-            p.x += 0.1 * h.cos();
-            p.y += 0.1 * h.sin();
-            b.on_snapshot(&world(&[(1, p), (2, p)], 1));
+            let dir = FRAC_PI_2 * f64::from(k);
+            p.x += 0.1 * dir.cos();
+            p.y += 0.1 * dir.sin();
+            h.snapshot(&world(&[(1, p), (2, p)], 1));
             p.theta += FRAC_PI_2;
-            b.on_snapshot(&world(&[(1, p), (2, p)], 1));
+            h.snapshot(&world(&[(1, p), (2, p)], 1));
         }
     }
 
     #[test]
     fn queues_eight_moves_per_robot_and_judges_the_closure() {
-        let start = START;
-        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        let intents = b.start(&world(&[(1, start), (2, start)], 0));
+        let mut h = Harness::new(SquareWalk::new(&BehaviourConfig::default()).unwrap());
+        let intents = h.start(&world(&[(1, START), (2, START)], 0));
         assert_eq!(intents.len(), 16);
-        assert!(b.verdict().is_none());
-        walk(&mut b, start);
-        for id in [1, 2] {
-            for _ in 0..8 {
-                b.on_event(id, &DONE, &world(&[], 0));
-            }
-        }
+        assert_eq!(h.team().outstanding(2), 8);
+        assert!(h.verdict().is_none());
+        walk(&mut h, START);
+        finish_all(&mut h, 1);
+        finish_all(&mut h, 2);
+        assert!(h.team().all_idle());
         let end = Pose {
             x: 0.303,
             y: 0.3,
             theta: TAU,
         };
-        b.on_snapshot(&world(&[(1, end), (2, end)], 0));
-        let v = b.verdict().unwrap();
+        h.snapshot(&world(&[(1, end), (2, end)], 0));
+        let v = h.verdict().unwrap();
         assert!(v.success, "{v:?}");
-        let mut far = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        far.start(&world(&[(1, start)], 0));
-        for _ in 0..8 {
-            far.on_event(1, &DONE, &world(&[], 0));
-        }
-        far.on_snapshot(&world(&[(1, Pose { x: 0.32, ..end })], 0));
+        let mut far = walk_of(&[1]);
+        finish_all(&mut far, 1);
+        far.snapshot(&world(&[(1, Pose { x: 0.32, ..end })], 0));
         assert!(!far.verdict().unwrap().success);
     }
 
     #[test]
     fn a_robot_that_reports_its_moves_done_without_moving_fails() {
-        let start = START;
-        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        b.start(&world(&[(1, start)], 0));
-        for _ in 0..8 {
-            b.on_event(1, &DONE, &world(&[], 0));
-        }
-        b.on_snapshot(&world(&[(1, start)], 0));
-        let v = b.verdict().unwrap();
+        let mut h = walk_of(&[1]);
+        finish_all(&mut h, 1);
+        h.snapshot(&world(&[(1, START)], 0));
+        let v = h.verdict().unwrap();
         assert!(!v.success, "{v:?}");
         assert!(
             v.summary.contains("robot 1") && v.summary.contains("encoders"),
@@ -378,54 +374,44 @@ mod tests {
 
     #[test]
     fn a_walk_without_its_turns_fails() {
-        let start = START;
-        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        b.start(&world(&[(1, start)], 0));
+        let mut h = walk_of(&[1]);
         // 0.4 m of path straight out and back, with a single half turn.
-        let out = Pose { x: 0.5, ..start };
-        b.on_snapshot(&world(&[(1, out)], 1));
+        let out = Pose { x: 0.5, ..START };
+        h.snapshot(&world(&[(1, out)], 1));
         let back = Pose { theta: PI, ..out };
-        b.on_snapshot(&world(&[(1, back)], 1));
-        for _ in 0..8 {
-            b.on_event(1, &DONE, &world(&[], 0));
-        }
-        b.on_snapshot(&world(&[(1, Pose { theta: PI, ..start })], 0));
-        let v = b.verdict().unwrap();
+        h.snapshot(&world(&[(1, back)], 1));
+        finish_all(&mut h, 1);
+        h.snapshot(&world(&[(1, Pose { theta: PI, ..START })], 0));
+        let v = h.verdict().unwrap();
         assert!(!v.success && v.summary.contains("turning"), "{v:?}");
     }
 
     #[test]
-    fn an_aborted_move_fails_the_walk() {
-        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        b.start(&world(&[(1, Pose::default())], 0));
-        let stopped = RobotEventKind::MoveFinished {
-            id: 1,
+    fn an_aborted_move_fails_the_walk_and_nothing_is_asked_after_it() {
+        let mut h = walk_of(&[1]);
+        let stopped = Event::MoveFinished {
+            tag: 0,
             outcome: MoveOutcome::Stopped,
         };
-        b.on_event(1, &stopped, &world(&[], 0));
-        assert!(!b.verdict().unwrap().success);
+        h.event(1, stopped, &world(&[], 0));
+        assert!(!h.verdict().unwrap().success);
+        assert!(h.snapshot(&world(&[(1, START)], 0)).is_empty());
     }
 
     #[test]
     fn a_walk_cut_mid_leg_is_planned_again_to_the_next_corner() {
-        let start = START;
-        let mut b = SquareWalk::new(&BehaviourConfig::default()).unwrap();
-        b.start(&world(&[(1, start)], 0));
+        let mut h = walk_of(&[1]);
         // First leg done (straight + turn), then the link drops 4 cm into the second straight.
-        b.on_event(1, &DONE, &world(&[], 0));
-        b.on_event(1, &DONE, &world(&[], 0));
-        b.on_event(1, &RobotEventKind::LinkLost, &world(&[], 0));
+        h.finish_move(1, 0, &world(&[], 0));
+        h.finish_move(1, 1, &world(&[], 0));
+        h.event(1, Event::LinkLost, &world(&[], 0));
+        assert!(h.team().idle(1), "the queue went with the link");
         let here = Pose {
             x: 0.4,
             y: 0.34,
             theta: FRAC_PI_2,
         };
-        let hello = protocol::packets::Hello::new(&protocol::Settings::default(), [0, 1, 0]);
-        let plan = b.on_event(
-            1,
-            &RobotEventKind::Connected(hello),
-            &world(&[(1, here)], 0),
-        );
+        let plan = h.event(1, Event::Connected, &world(&[(1, here)], 0));
         let cmds: Vec<MoveCommand> = plan
             .iter()
             .map(|i| match i {

@@ -17,12 +17,13 @@ use std::collections::BTreeMap;
 use std::f64::consts::{FRAC_PI_2, PI};
 use std::time::Duration;
 
-use protocol::packets::MoveOutcome;
-use robot_actor::RobotEventKind;
+use protocol::packets::Side;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
+use crate::event::Event;
 use crate::evidence::Odometer;
 use crate::moves::{Leg, Legs};
+use crate::team::Team;
 use crate::track_loop::TrackLoop;
 
 /// The carrier's LED, and everyone else's.
@@ -50,11 +51,14 @@ const DETOUR_ALONG: f64 = 0.125;
 const REJOIN_CLEAR: f64 = 0.15;
 /// How far the front receiver sees a reflection at each power level: half the default reach of
 /// the level (the light goes there and back).
-const REFLECT_REACH_M: [f64; 4] = [0.015, 0.03, 0.05, 0.075];
+const REFLECT_REACH_M: [f64; 4] = {
+    let r = world::robot::IR_RANGE_M;
+    [r[0] / 2.0, r[1] / 2.0, r[2] / 2.0, r[3] / 2.0]
+};
 /// Slack for the world model's error when asking whether a known body explains a reflection.
 const MODEL_SLACK_M: f64 = 0.03;
 /// Half a robot's length: from its centre to its front, where the emitter and receiver sit.
-const HALF_LEN: f64 = 0.024;
+const HALF_LEN: f64 = world::robot::LENGTH_M / 2.0;
 /// A manoeuvre's next move waits until the wheels have read zero speed this long: a wheel
 /// creeping slower than the speed meter resolves reads zero for a moment, and a move planned
 /// from there is off by the rest of the creep (and a reversing wheel miscounts it).
@@ -68,15 +72,10 @@ const LOOP_SHARE_PER_ROUND: f64 = 0.5;
 
 #[derive(Clone, Debug, Default)]
 struct Bot {
-    /// Speed last sent; `None` when not following.
-    following: Option<f32>,
-    /// Moves sent and not yet finished (at most one: moves go one at a time).
-    outstanding: usize,
     /// The detour or turn under way, driven closed-loop one move at a time.
     legs: Legs,
     /// Since when the robot's wheels have read zero speed, if they do.
     still_since: Option<Duration>,
-    aborted: bool,
     started: bool,
 }
 
@@ -150,15 +149,12 @@ impl TokenRing {
     /// The nearest robot ahead of `me` in the direction of travel and its distance (along the
     /// tape when both are on it, straight-line within a cone ahead otherwise).
     fn ahead(&self, me: &RobotView, world: &WorldSnapshot) -> Option<(u16, f64)> {
-        let mine = me.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
         let mut best: Option<(u16, f64)> = None;
         for other in world.robots.iter().filter(|o| o.id != me.id) {
-            let theirs = other.on_track.map(|(e, o, _)| self.track.coordinate(e, o));
-            let d = match (mine, theirs) {
-                (Some(a), Some(b)) if self.direction > 0.0 => self.track.ahead(a, b),
-                (Some(a), Some(b)) => self.track.ahead(b, a),
-                _ => f64::INFINITY,
-            };
+            let d = self
+                .track
+                .gap(me, other, self.direction > 0.0)
+                .unwrap_or(f64::INFINITY);
             // Off the tape (detouring) or close by, a robot in front counts by straight-line
             // distance: anywhere in the front half within `NEAR`, within the cone farther out.
             let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
@@ -210,51 +206,43 @@ impl TokenRing {
         robot_there || wall < reach
     }
 
-    fn follow(&mut self, id: u16, speed: Option<f32>) -> Option<Intent> {
-        let bot = self.bots.get_mut(&id)?;
-        if bot.following == speed {
-            return None;
-        }
-        bot.following = speed;
-        Some(Intent::FollowLine { robot: id, speed })
-    }
-
     /// Starts a manoeuvre; its moves go out one at a time, each from the robot's pose when the
     /// last has finished, so a move the safety check holds is simply tried again later instead
     /// of leaving the robot halfway.
-    fn send(&mut self, id: u16, legs: &[Leg], world: &WorldSnapshot) -> Vec<Intent> {
+    fn send(&mut self, id: u16, legs: &[Leg], world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         if let Some(bot) = self.bots.get_mut(&id) {
             bot.legs = Legs::new(MANOEUVRE_MPS);
             for leg in legs {
                 bot.legs.push(*leg);
             }
-            bot.following = None;
         }
-        self.pump(id, world).into_iter().collect()
+        self.pump(id, world, team).into_iter().collect()
     }
 
     /// The robot's next manoeuvre move, if none is running and the robot has settled: a turn
     /// is reported finished while the wheels still coast, and a leg planned from that pose would
     /// be off by the rest of the coast.
-    fn pump(&mut self, id: u16, world: &WorldSnapshot) -> Option<Intent> {
+    fn pump(&mut self, id: u16, world: &WorldSnapshot, team: &Team) -> Option<Intent> {
         let pose = world.robot(id)?.pose;
         let bot = self.bots.get_mut(&id)?;
         let settled = bot
             .still_since
             .is_some_and(|t| world.time.saturating_sub(t) >= SETTLE);
-        if bot.outstanding > 0 || !settled {
+        if !team.idle(id) || !settled {
             return None;
         }
         let command = bot.legs.next(pose)?;
         tracing::debug!(robot = id, ?command, ?pose, "manoeuvre move");
-        bot.outstanding = 1;
-        Some(Intent::Move { robot: id, command })
+        Some(Intent::Move {
+            robot: id,
+            command,
+            tag: 0,
+        })
     }
 
-    fn busy(&self, id: u16) -> bool {
-        self.bots
-            .get(&id)
-            .is_some_and(|b| b.outstanding > 0 || !b.legs.is_empty())
+    /// Whether the robot is on a manoeuvre: a move out or legs still to drive.
+    fn busy(&self, id: u16, team: &Team) -> bool {
+        !team.idle(id) || self.bots.get(&id).is_some_and(|b| !b.legs.is_empty())
     }
 
     fn leds(&self) -> Vec<Intent> {
@@ -273,7 +261,7 @@ impl TokenRing {
 
     /// Around the box on the robot's right: back off a little, step aside, pass, step back onto
     /// the tape where it continues past the box, face along it.
-    fn detour(&mut self, view: &RobotView, world: &WorldSnapshot) -> Vec<Intent> {
+    fn detour(&mut self, view: &RobotView, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         let p = view.pose;
         let (s, c) = p.theta.sin_cos();
         let (rx, ry) = (s, -c);
@@ -304,7 +292,7 @@ impl TokenRing {
             Leg::Face(heading),
         ];
         self.detours += 1;
-        self.send(view.id, &legs, world)
+        self.send(view.id, &legs, world, team)
     }
 
     fn finish(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
@@ -344,10 +332,7 @@ impl TokenRing {
                 world.time.as_secs_f64() / (f64::from(self.passes) / n),
             ),
         );
-        self.order
-            .iter()
-            .map(|&robot| Intent::Stop { robot })
-            .collect()
+        Vec::new()
     }
 
     fn fail(&mut self, why: String) -> Vec<Intent> {
@@ -357,13 +342,10 @@ impl TokenRing {
                 .with("passes", f64::from(self.passes))
                 .with("least_encoder_distance_m", least_m),
         );
-        self.order
-            .iter()
-            .map(|&robot| Intent::Stop { robot })
-            .collect()
+        Vec::new()
     }
 
-    fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
@@ -386,29 +368,29 @@ impl TokenRing {
                 self.passes
             ));
         }
-        if let Some((id, _)) = self.bots.iter().find(|(_, b)| b.aborted) {
+        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
             return self.fail(format!("robot {id}: a manoeuvre was aborted"));
         }
         if self.turning {
-            if self.order.iter().all(|id| !self.busy(*id)) {
+            if self.order.iter().all(|id| !self.busy(*id, team)) {
                 self.turning = false;
                 self.direction = -self.direction;
                 self.reversals += 1;
             } else {
                 for id in self.order.clone() {
-                    out.extend(self.pump(id, world));
+                    out.extend(self.pump(id, world, team));
                 }
                 return out;
             }
         }
         // Turn the whole team round once the token has been round, when nobody is mid-detour.
-        if self.passes >= self.reverse_at && self.order.iter().all(|id| !self.busy(*id)) {
+        if self.passes >= self.reverse_at && self.order.iter().all(|id| !self.busy(*id, team)) {
             self.reverse_at += self.order.len() as u32;
             self.turning = true;
             for id in self.order.clone() {
                 if let Some(view) = world.robot(id) {
                     out.push(Intent::Stop { robot: id });
-                    out.extend(self.send(id, &[Leg::Face(view.pose.theta + PI)], world));
+                    out.extend(self.send(id, &[Leg::Face(view.pose.theta + PI)], world, team));
                 }
             }
             return out;
@@ -420,12 +402,12 @@ impl TokenRing {
             let Some(bot) = self.bots.get(&id) else {
                 continue;
             };
-            if bot.outstanding > 0 {
+            if !team.idle(id) {
                 continue;
             }
             if !bot.legs.is_empty() {
                 // A held move: try it again.
-                out.extend(self.pump(id, world));
+                out.extend(self.pump(id, world, team));
                 continue;
             }
             if !bot.started {
@@ -441,9 +423,21 @@ impl TokenRing {
             let level = view.state.proximity.front_obstacle;
             let unknown = level > 0 && !self.reflection_explained(view, world, level);
             if level == 1 && unknown {
-                out.extend(self.follow(id, None));
-                // One detour at a time: the box's surroundings hold one robot off the tape.
-                let someone_detouring = self.order.iter().any(|o| *o != id && self.busy(*o));
+                out.push(Intent::FollowLine {
+                    robot: id,
+                    speed: None,
+                });
+                // One detour at a time: the box's surroundings hold one robot off the tape. A
+                // move sent in this same step counts too (the team's books see it once this
+                // step returns).
+                let moving = |o: u16| {
+                    out.iter()
+                        .any(|i| matches!(i, Intent::Move { robot, .. } if *robot == o))
+                };
+                let someone_detouring = self
+                    .order
+                    .iter()
+                    .any(|o| *o != id && (self.busy(*o, team) || moving(*o)));
                 // The tape past the box, where the detour comes back, must be free.
                 let (s, c) = view.pose.theta.sin_cos();
                 let rejoin = (view.pose.x + 0.12 * c, view.pose.y + 0.12 * s);
@@ -454,11 +448,11 @@ impl TokenRing {
                     .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
                 if !someone_detouring && rejoin_clear {
                     out.push(Intent::Stop { robot: id });
-                    out.extend(self.detour(view, world));
+                    out.extend(self.detour(view, world, team));
                 }
                 continue;
             }
-            let current = self.bots.get(&id).and_then(|b| b.following);
+            let current = team.following(id);
             let mut want = if gap < STOP_GAP {
                 None
             } else if gap > GO_GAP || current.is_some() {
@@ -469,45 +463,43 @@ impl TokenRing {
             if unknown && (2..=3).contains(&level) {
                 want = want.map(|v| v.min(CREEP_MPS));
             }
-            out.extend(self.follow(id, want));
+            out.push(Intent::FollowLine {
+                robot: id,
+                speed: want,
+            });
         }
         out
     }
 }
 
 impl Behaviour for TokenRing {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
         self.last_pass = world.time;
         let mut out = self.leds();
-        out.extend(self.step(world));
+        out.extend(self.step(world, team));
         out
     }
 
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
-        self.step(world)
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.step(world, team)
     }
 
     fn on_event(
         &mut self,
         robot: u16,
-        event: &RobotEventKind,
+        event: &Event,
         world: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
         match event {
             // The carrier's front receiver identified the robot ahead of it.
-            RobotEventKind::Encounter(e)
-                if robot == self.holder && e.side == 0 && !self.turning =>
+            Event::Sighting(e)
+                if robot == self.holder && e.side == Side::Front && !self.turning =>
             {
                 let Some(view) = world.robot(robot) else {
                     return Vec::new();
                 };
-                let seen = e.robot_id;
+                let seen = e.robot;
                 match self.ahead(view, world) {
                     Some((next, d)) if next == seen && d < PASS_RANGE => {}
                     _ => return Vec::new(),
@@ -524,10 +516,11 @@ impl Behaviour for TokenRing {
                 let mut out = self.leds();
                 // New speeds at once: the new carrier pulls away, the old one falls back.
                 for id in [robot, seen] {
-                    let running = self.bots.get(&id).is_some_and(|b| b.following.is_some());
-                    if running {
-                        let v = self.speed_of(id);
-                        out.extend(self.follow(id, Some(v)));
+                    if team.following(id).is_some() {
+                        out.push(Intent::FollowLine {
+                            robot: id,
+                            speed: Some(self.speed_of(id)),
+                        });
                     }
                 }
                 if self.passes >= self.rounds * self.order.len() as u32 {
@@ -535,25 +528,22 @@ impl Behaviour for TokenRing {
                 }
                 out
             }
-            RobotEventKind::MoveFinished { outcome, .. } => {
-                if let Some(bot) = self.bots.get_mut(&robot) {
-                    bot.outstanding = bot.outstanding.saturating_sub(1);
-                    if *outcome != MoveOutcome::Completed {
-                        bot.aborted = true;
-                    }
-                }
-                self.pump(robot, world).into_iter().collect()
-            }
-            RobotEventKind::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            Event::MoveFinished { .. } => self.pump(robot, world, team).into_iter().collect(),
+            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
         }
     }
 
-    fn on_held(&mut self, intent: &Intent, _reason: &str, _world: &WorldSnapshot) -> Vec<Intent> {
+    fn on_held(
+        &mut self,
+        intent: &Intent,
+        _reason: &str,
+        _world: &WorldSnapshot,
+        _team: &mut Team,
+    ) -> Vec<Intent> {
         // A held move never ran: the leg stays, and the next snapshot tries it again.
         if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.get_mut(robot) {
-                bot.outstanding = bot.outstanding.saturating_sub(1);
                 bot.legs.held();
             }
         }

@@ -43,15 +43,17 @@ use petgraph::graph::NodeIndex;
 use protocol::packets::MoveOutcome;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use robot_actor::{MoveCommand, Pose, RobotEventKind};
+use robot_actor::{MoveCommand, Pose};
 use world::graph::TrackGraph;
 use world::Track;
 
 use crate::api::{
     Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, Verdict, WorldSnapshot,
 };
+use crate::event::Event;
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
-use crate::moves::{wrap, Route};
+use crate::moves::{wrap, Manoeuvre};
+use crate::team::Team;
 
 /// Driving speed along edges.
 const DRIVE_MPS: f32 = 0.1;
@@ -89,7 +91,7 @@ enum Phase {
 
 /// An edge being driven, one short segment at a time.
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Leg {
+struct EdgeDrive {
     /// ADG action index, `None` for a drive outside the plan (onto the first node, or back to
     /// the node it came from in a recovery).
     index: Option<usize>,
@@ -112,10 +114,8 @@ struct Bot {
     /// The node the robot stands on, or is driving from.
     node: u32,
     goal: u32,
-    /// Moves sent and not yet finished.
-    outstanding: usize,
     /// The edge being driven.
-    driving: Option<Leg>,
+    driving: Option<EdgeDrive>,
     /// Its leg ended without a move (it already stood on the node): completed at the next step.
     at_end: bool,
     tasks_done: u32,
@@ -130,8 +130,6 @@ struct Bot {
     fresh_hold: bool,
     /// Why the world model lost it, while it is lost.
     lost: Option<String>,
-    /// Move events still to come for moves dropped when it was lost.
-    stale: usize,
     rng: ChaCha8Rng,
     /// Has a task (false once its quota is done: it only keeps out of the way).
     active: bool,
@@ -218,7 +216,6 @@ impl TrafficControl {
                 id,
                 node: 0,
                 goal: scripted.as_ref().map_or(u32::MAX, |g| g[k]),
-                outstanding: 0,
                 driving: None,
                 at_end: false,
                 tasks_done: 0,
@@ -228,7 +225,6 @@ impl TrafficControl {
                 held_why: String::new(),
                 fresh_hold: false,
                 lost: None,
-                stale: 0,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
                 active: true,
             })
@@ -281,7 +277,7 @@ impl TrafficControl {
     }
 
     /// The node a leg starts from.
-    fn leg_from(&self, leg: &Leg) -> u32 {
+    fn leg_from(&self, leg: &EdgeDrive) -> u32 {
         let e = &self.track.edges()[leg.edge];
         if leg.forward {
             e.from as u32
@@ -291,8 +287,8 @@ impl TrafficControl {
     }
 
     /// The same edge driven back to the node it started from, outside the plan.
-    fn reversed(&self, leg: &Leg) -> Leg {
-        Leg {
+    fn reversed(&self, leg: &EdgeDrive) -> EdgeDrive {
+        EdgeDrive {
             index: None,
             edge: leg.edge,
             forward: !leg.forward,
@@ -307,11 +303,11 @@ impl TrafficControl {
     /// end node when that is nearer. Each segment is planned from the world model's pose, which
     /// the tape under the sensor keeps corrected, so errors of one segment are taken out by the
     /// next instead of adding up over a long curve.
-    fn segment(&self, pose: Pose, leg: &mut Leg) -> Route {
+    fn segment(&self, pose: Pose, leg: &mut EdgeDrive) -> Manoeuvre {
         if leg.back {
             leg.last = true;
             let q = self.position(leg.to);
-            let route = Route::from(pose, DRIVE_MPS).back_to(q.x, q.y);
+            let route = Manoeuvre::from(pose, DRIVE_MPS).back_to(q.x, q.y);
             return route;
         }
         let len = self.track.edge_length(leg.edge);
@@ -337,7 +333,7 @@ impl TrafficControl {
         };
         let (q, _) = self.track.point_at(leg.edge, target_offset);
         let q = if leg.last { self.position(leg.to) } else { q };
-        let mut route = Route::from(pose, DRIVE_MPS);
+        let mut route = Manoeuvre::from(pose, DRIVE_MPS);
         let (dx, dy) = (q.x - pose.x, q.y - pose.y);
         let d = dx.hypot(dy);
         if d < 0.003 {
@@ -393,15 +389,9 @@ impl TrafficControl {
         self.send(k, route)
     }
 
-    fn send(&mut self, k: usize, route: Route) -> Vec<Intent> {
-        let id = self.bots[k].id;
-        self.bots[k].outstanding += route.moves.len();
+    fn send(&mut self, k: usize, route: Manoeuvre) -> Vec<Intent> {
         self.bots[k].fresh_hold = true;
-        route
-            .moves
-            .into_iter()
-            .map(|command| Intent::Move { robot: id, command })
-            .collect()
+        Intent::moves(self.bots[k].id, route.moves, 0)
     }
 
     /// Puts every robot on a node of its own. A robot within `NODE_SLACK_M` of a node stands on
@@ -515,7 +505,7 @@ impl TrafficControl {
             self.bots[k].node = target;
             let forward = target == to;
             let facing = forward == towards_to;
-            self.bots[k].driving = Some(Leg {
+            self.bots[k].driving = Some(EdgeDrive {
                 index: None,
                 edge: near.edge,
                 forward,
@@ -595,14 +585,14 @@ impl TrafficControl {
     }
 
     /// Starts every action the dependency graph allows.
-    fn dispatch(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn dispatch(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         let mut out = Vec::new();
         if self.phase != Phase::Running {
             return out;
         }
         for k in 0..self.bots.len() {
             let b = &self.bots[k];
-            if b.driving.is_some() || b.outstanding > 0 || b.lost.is_some() {
+            if b.driving.is_some() || !team.idle(b.id) || b.lost.is_some() {
                 continue;
             }
             let Some(action) = self.adg.as_ref().and_then(|a| a.ready(k)) else {
@@ -622,7 +612,7 @@ impl TrafficControl {
                 pose = ?(view.pose.x, view.pose.y, view.pose.theta.to_degrees()),
                 "drive"
             );
-            self.bots[k].driving = Some(Leg {
+            self.bots[k].driving = Some(EdgeDrive {
                 index: Some(action.index),
                 edge,
                 forward,
@@ -692,7 +682,7 @@ impl TrafficControl {
     /// is held, or every driving robot from the second recovery on, drives back to the node it
     /// came from; the others finish their edges) and plan the team again from there. Fails
     /// once `MAX_RECOVERIES` recoveries in a row brought no task done.
-    fn recover(&mut self, world: &WorldSnapshot, why: String) -> Vec<Intent> {
+    fn recover(&mut self, world: &WorldSnapshot, why: String, team: &Team) -> Vec<Intent> {
         self.recoveries += 1;
         if self.recoveries > MAX_RECOVERIES {
             let summary = format!(
@@ -725,7 +715,7 @@ impl TrafficControl {
             b.driving = Some(back);
             b.held_since = None;
             b.at_end = false;
-            if b.outstanding == 0 {
+            if team.idle(b.id) {
                 b.retry = false;
                 out.extend(self.drive(k, world));
             }
@@ -782,10 +772,7 @@ impl TrafficControl {
             .with("held_segments", f64::from(self.held))
             .with("plan_time_max_ms", self.plan_time_max.as_secs_f64() * 1e3),
         );
-        self.bots
-            .iter()
-            .map(|b| Intent::Stop { robot: b.id })
-            .collect()
+        Vec::new()
     }
 
     fn fail(&mut self, why: String) -> Vec<Intent> {
@@ -795,14 +782,16 @@ impl TrafficControl {
                 .with("plans", f64::from(self.replans))
                 .with("recoveries", f64::from(self.recoveries_total)),
         );
-        self.bots
-            .iter()
-            .map(|b| Intent::Stop { robot: b.id })
-            .collect()
+        Vec::new()
     }
 
     /// Robot `k` reached the end of `leg`.
-    fn complete_leg(&mut self, k: usize, leg: Leg, world: &WorldSnapshot) -> Result<(), String> {
+    fn complete_leg(
+        &mut self,
+        k: usize,
+        leg: EdgeDrive,
+        world: &WorldSnapshot,
+    ) -> Result<(), String> {
         self.bots[k].node = leg.to;
         self.last_progress = world.time;
         let Some(index) = leg.index else {
@@ -836,7 +825,7 @@ impl TrafficControl {
         Ok(())
     }
 
-    fn step(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
@@ -868,17 +857,17 @@ impl TrafficControl {
                 HOLD_LIMIT.as_secs(),
                 b.held_why
             );
-            out.extend(self.recover(world, why));
+            out.extend(self.recover(world, why, team));
         } else if world.time.saturating_sub(self.last_progress) > STALL_LIMIT {
             let why = format!("no robot finished an edge for {} s", STALL_LIMIT.as_secs());
-            out.extend(self.recover(world, why));
+            out.extend(self.recover(world, why, team));
         }
         if self.verdict.is_some() {
             return out;
         }
         for k in 0..self.bots.len() {
             let b = &self.bots[k];
-            if b.retry && b.outstanding == 0 && b.lost.is_none() {
+            if b.retry && team.idle(b.id) && b.lost.is_none() {
                 self.bots[k].retry = false;
                 out.extend(self.drive(k, world));
             }
@@ -886,7 +875,7 @@ impl TrafficControl {
         let all_still = self
             .bots
             .iter()
-            .all(|b| b.outstanding == 0 && b.driving.is_none() && b.lost.is_none());
+            .all(|b| team.idle(b.id) && b.driving.is_none() && b.lost.is_none());
         if self.phase == Phase::Placing && all_still {
             self.phase = Phase::Draining;
         }
@@ -902,16 +891,14 @@ impl TrafficControl {
             }
             self.phase = Phase::Running;
         }
-        out.extend(self.dispatch(world));
+        out.extend(self.dispatch(world, team));
         out
     }
 
-    /// Robot `k` is lost: its queued moves are dropped by the supervisor, so their events are
-    /// not progress nor failure; its leg is kept for when it is found.
+    /// Robot `k` is lost: its queued moves are dropped by the supervisor (the team forgets
+    /// them), so their ends are not progress nor failure; its leg is kept for when it is found.
     fn lose(&mut self, k: usize, why: String) {
         let b = &mut self.bots[k];
-        b.stale += b.outstanding;
-        b.outstanding = 0;
         b.retry = false;
         b.held_since = None;
         if let Some(leg) = b.driving.as_mut() {
@@ -922,7 +909,7 @@ impl TrafficControl {
 }
 
 impl Behaviour for TrafficControl {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn start(&mut self, world: &WorldSnapshot, _: &mut Team) -> Vec<Intent> {
         self.started = world.time;
         self.last_progress = world.time;
         match self.place(world) {
@@ -931,79 +918,69 @@ impl Behaviour for TrafficControl {
         }
     }
 
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
-        self.step(world)
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.step(world, team)
     }
 
     fn on_event(
         &mut self,
         robot: u16,
-        event: &RobotEventKind,
+        event: &Event,
         world: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
         let Some(k) = self.bots.iter().position(|b| b.id == robot) else {
             return Vec::new();
         };
         match event {
-            RobotEventKind::MoveFinished { outcome, .. } => {
+            Event::MoveFinished { outcome, .. } => {
                 if self.bots[k].lost.is_some() {
-                    let b = &mut self.bots[k];
-                    b.stale = b.stale.saturating_sub(1);
                     return Vec::new();
                 }
                 if *outcome != MoveOutcome::Completed {
-                    if self.bots[k].stale > 0 {
-                        self.bots[k].stale -= 1;
-                        return Vec::new();
-                    }
                     // The supervisor may stop a robot it lost before telling us so.
                     if world
                         .robot(robot)
                         .is_some_and(|v| v.localisation == Localisation::Lost)
                     {
                         self.lose(k, "the world model lost it".into());
-                        let b = &mut self.bots[k];
-                        b.stale = b.stale.saturating_sub(1);
                         return Vec::new();
                     }
                     return self.fail(format!("robot {robot}: a move ended {outcome:?}"));
                 }
-                let bot = &mut self.bots[k];
-                bot.held_since = None;
-                bot.outstanding = bot.outstanding.saturating_sub(1);
-                if bot.outstanding == 0 {
-                    match bot.driving {
+                self.bots[k].held_since = None;
+                if team.idle(robot) {
+                    match self.bots[k].driving {
                         Some(leg) if leg.last => {
                             self.bots[k].driving = None;
                             if let Err(e) = self.complete_leg(k, leg, world) {
                                 return self.fail(e);
                             }
-                            return self.step(world);
+                            return self.step(world, team);
                         }
                         Some(_) => return self.drive(k, world),
-                        None => return self.step(world),
+                        None => return self.step(world, team),
                     }
                 }
                 Vec::new()
             }
-            RobotEventKind::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
         }
     }
 
-    fn on_held(&mut self, intent: &Intent, reason: &str, world: &WorldSnapshot) -> Vec<Intent> {
+    fn on_held(
+        &mut self,
+        intent: &Intent,
+        reason: &str,
+        world: &WorldSnapshot,
+        team: &mut Team,
+    ) -> Vec<Intent> {
         // The plan keeps robots apart by construction; a held segment means the world model saw
         // a robot closer than the plan assumed (a pose error). The segment is planned again from
         // the robot's pose at the next snapshot; held for `HOLD_LIMIT`, the team is replanned.
         if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.iter_mut().find(|b| b.id == *robot) {
-                bot.outstanding = bot.outstanding.saturating_sub(1);
                 // The segment did not reach the node even if earlier moves of it are driven.
                 if let Some(leg) = bot.driving.as_mut() {
                     leg.last = false;
@@ -1014,7 +991,7 @@ impl Behaviour for TrafficControl {
                     if std::mem::take(&mut bot.fresh_hold) {
                         bot.held_why = reason.to_owned();
                     }
-                    if bot.outstanding == 0 && bot.driving.is_some() {
+                    if team.idle(bot.id) && bot.driving.is_some() {
                         bot.retry = true;
                     }
                 }
@@ -1029,10 +1006,8 @@ impl Behaviour for TrafficControl {
         robot: u16,
         event: &LocalisationEvent,
         world: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
-        if self.verdict.is_some() {
-            return Vec::new();
-        }
         let Some(k) = self.bots.iter().position(|b| b.id == robot) else {
             return Vec::new();
         };
@@ -1045,10 +1020,10 @@ impl Behaviour for TrafficControl {
                 self.bots[k].lost = None;
                 self.last_progress = world.time;
                 let mut out = Vec::new();
-                if self.bots[k].driving.is_some() && self.bots[k].outstanding == 0 {
+                if self.bots[k].driving.is_some() && team.idle(robot) {
                     out.extend(self.drive(k, world));
                 }
-                out.extend(self.step(world));
+                out.extend(self.step(world, team));
                 out
             }
         }
@@ -1096,7 +1071,7 @@ mod tests {
                 t.graph.node(v).unwrap().index() as u32,
             );
             let (edge, forward) = t.edge_between(u, v).unwrap();
-            let mut leg = Leg {
+            let mut leg = EdgeDrive {
                 index: Some(0),
                 edge,
                 forward,
@@ -1126,7 +1101,7 @@ mod tests {
         }
     }
 
-    use crate::api::RobotView;
+    use crate::testing::{world, Harness};
 
     fn junction(robots: &[u16]) -> TrafficControl {
         let w = presets::preset("junction").unwrap();
@@ -1140,24 +1115,13 @@ mod tests {
 
     /// A snapshot at `secs` with robots at `(id, x, y, heading in degrees)`.
     fn snapshot(secs: u64, robots: &[(u16, f64, f64, f64)]) -> WorldSnapshot {
-        WorldSnapshot {
-            time: Duration::from_secs(secs),
-            robots: robots
-                .iter()
-                .map(|&(id, x, y, deg)| RobotView {
-                    id,
-                    connected: true,
-                    pose: Pose {
-                        x,
-                        y,
-                        theta: deg.to_radians(),
-                    },
-                    ..Default::default()
-                })
-                .collect(),
-            encounters: Vec::new(),
-            arena: (1.6, 1.0),
-        }
+        robots
+            .iter()
+            .fold(
+                world().arena(1.6, 1.0).at(secs as f64),
+                |w, &(id, x, y, deg)| w.robot(id, x, y, deg),
+            )
+            .build()
     }
 
     fn node(t: &TrafficControl, id: &str) -> u32 {
@@ -1172,62 +1136,77 @@ mod tests {
 
     #[test]
     fn a_robot_on_a_node_stands_there_and_is_planned_from_it() {
-        let mut t = junction(&[1]);
+        let mut h = Harness::new(junction(&[1]));
         // C is at (0.8, 0.15): 1 cm off it still stands on it.
         let w = snapshot(0, &[(1, 0.81, 0.15, 90.0)]);
-        let out = t.start(&w);
-        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        let out = h.start(&w);
+        assert!(
+            h.behaviour().verdict.is_none(),
+            "{:?}",
+            h.behaviour().verdict
+        );
         assert_eq!(moves_for(&out, 1), 0, "{out:?}");
-        assert_eq!(t.bots[0].node, node(&t, "C"));
+        assert_eq!(h.behaviour().bots[0].node, node(h.behaviour(), "C"));
         // At the next snapshot the team is planned and the robot drives its first edge.
-        let out = t.on_snapshot(&snapshot(1, &[(1, 0.81, 0.15, 90.0)]));
-        assert_eq!(t.phase, Phase::Running);
+        let out = h.snapshot(&snapshot(1, &[(1, 0.81, 0.15, 90.0)]));
+        assert_eq!(h.behaviour().phase, Phase::Running);
         assert!(moves_for(&out, 1) > 0, "{out:?}");
-        assert!(t.bots[0].driving.is_some_and(|l| l.index.is_some()));
+        assert!(h.behaviour().bots[0]
+            .driving
+            .is_some_and(|l| l.index.is_some()));
     }
 
     #[test]
     fn a_robot_on_an_edge_drives_to_the_node_ahead_or_the_free_one_behind() {
-        let mut t = junction(&[1, 2]);
+        let mut h = Harness::new(junction(&[1, 2]));
         // Robot 1 stands on C; robot 2 on the main line between F and C, heading for C, backs
         // to F.
         let w = snapshot(0, &[(1, 0.8, 0.15, 0.0), (2, 0.7, 0.15, 0.0)]);
-        let out = t.start(&w);
-        assert!(t.verdict.is_none(), "{:?}", t.verdict);
-        assert_eq!(t.bots[0].node, node(&t, "C"));
-        assert_eq!(t.bots[1].node, node(&t, "F"));
-        let leg = t.bots[1].driving.unwrap();
-        assert!(leg.back && leg.to == node(&t, "F"), "{leg:?}");
+        let out = h.start(&w);
+        assert!(
+            h.behaviour().verdict.is_none(),
+            "{:?}",
+            h.behaviour().verdict
+        );
+        assert_eq!(h.behaviour().bots[0].node, node(h.behaviour(), "C"));
+        assert_eq!(h.behaviour().bots[1].node, node(h.behaviour(), "F"));
+        let leg = h.behaviour().bots[1].driving.unwrap();
+        assert!(leg.back && leg.to == node(h.behaviour(), "F"), "{leg:?}");
         match out.as_slice() {
             [Intent::Move {
                 robot: 2,
                 command: MoveCommand::Straight { distance_m, .. },
+                ..
             }] => assert!((*distance_m + 0.25).abs() < 1e-3, "{out:?}"),
             _ => panic!("robot 2 backs to F: {out:?}"),
         }
         // Alone, it drives ahead to C.
-        let mut t = junction(&[2]);
-        let out = t.start(&snapshot(0, &[(2, 0.7, 0.15, 0.0)]));
-        assert_eq!(t.bots[0].node, node(&t, "C"));
-        assert!(!t.bots[0].driving.unwrap().back);
+        let mut h = Harness::new(junction(&[2]));
+        let out = h.start(&snapshot(0, &[(2, 0.7, 0.15, 0.0)]));
+        assert_eq!(h.behaviour().bots[0].node, node(h.behaviour(), "C"));
+        assert!(!h.behaviour().bots[0].driving.unwrap().back);
         assert!(moves_for(&out, 2) > 0);
     }
 
     #[test]
     fn two_robots_on_one_edge_take_the_end_on_their_side() {
-        let mut t = junction(&[1, 2]);
+        let mut h = Harness::new(junction(&[1, 2]));
         // Both head for C; robot 1 is behind robot 2, so it goes back to F instead of passing.
-        t.start(&snapshot(0, &[(1, 0.55, 0.15, 0.0), (2, 0.7, 0.15, 0.0)]));
-        assert!(t.verdict.is_none(), "{:?}", t.verdict);
-        assert_eq!(t.bots[0].node, node(&t, "F"));
-        assert_eq!(t.bots[1].node, node(&t, "C"));
+        h.start(&snapshot(0, &[(1, 0.55, 0.15, 0.0), (2, 0.7, 0.15, 0.0)]));
+        assert!(
+            h.behaviour().verdict.is_none(),
+            "{:?}",
+            h.behaviour().verdict
+        );
+        assert_eq!(h.behaviour().bots[0].node, node(h.behaviour(), "F"));
+        assert_eq!(h.behaviour().bots[1].node, node(h.behaviour(), "C"));
     }
 
     #[test]
     fn a_robot_off_the_tape_is_refused_with_where_it_is() {
-        let mut t = junction(&[1, 7]);
-        let out = t.start(&snapshot(0, &[(1, 0.8, 0.15, 0.0), (7, 0.8, 0.42, 0.0)]));
-        let v = t.verdict.clone().expect("refused");
+        let mut h = Harness::new(junction(&[1, 7]));
+        let out = h.start(&snapshot(0, &[(1, 0.8, 0.15, 0.0), (7, 0.8, 0.42, 0.0)]));
+        let v = h.behaviour().verdict.clone().expect("refused");
         assert!(!v.success);
         assert!(
             v.summary.contains("robot 7")
@@ -1236,13 +1215,13 @@ mod tests {
             "{}",
             v.summary
         );
-        assert!(out.iter().all(|i| matches!(i, Intent::Stop { .. })));
+        assert!(out.is_empty(), "nothing moves: {out:?}");
     }
 
     #[test]
     fn a_robot_with_both_ends_taken_is_refused_naming_who_holds_them() {
-        let mut t = junction(&[1, 2, 3]);
-        t.start(&snapshot(
+        let mut h = Harness::new(junction(&[1, 2, 3]));
+        h.start(&snapshot(
             0,
             &[
                 (1, 0.45, 0.15, 0.0),
@@ -1250,7 +1229,7 @@ mod tests {
                 (3, 0.62, 0.15, 0.0),
             ],
         ));
-        let v = t.verdict.clone().expect("refused");
+        let v = h.behaviour().verdict.clone().expect("refused");
         assert!(
             v.summary.contains("robot 3") && v.summary.contains("C by robot 2"),
             "{}",
@@ -1260,50 +1239,57 @@ mod tests {
 
     #[test]
     fn a_lost_robot_keeps_its_leg_and_drives_it_again_when_found() {
-        let mut t = junction(&[2]);
+        let mut h = Harness::new(junction(&[2]));
         let w = snapshot(0, &[(2, 0.7, 0.15, 0.0)]);
-        let out = t.start(&w);
+        let out = h.start(&w);
         let sent = moves_for(&out, 2);
         assert!(sent > 0);
-        t.on_localisation(
+        h.localise(
             2,
-            &LocalisationEvent::Lost {
+            LocalisationEvent::Lost {
                 why: "tape where none is".into(),
             },
             &w,
         );
         // Its dropped moves end aborted: not a failure, not progress.
         for _ in 0..sent {
-            let aborted = RobotEventKind::MoveFinished {
-                id: 0,
+            let aborted = Event::MoveFinished {
+                tag: 0,
                 outcome: MoveOutcome::Stopped,
             };
-            assert!(t.on_event(2, &aborted, &w).is_empty());
+            assert!(h.event(2, aborted, &w).is_empty());
         }
         // Lost for longer than a stall would take is no deadlock.
         let late = snapshot(120, &[(2, 0.7, 0.15, 0.0)]);
-        t.on_snapshot(&late);
-        assert!(t.verdict.is_none(), "{:?}", t.verdict);
+        h.snapshot(&late);
+        assert!(
+            h.behaviour().verdict.is_none(),
+            "{:?}",
+            h.behaviour().verdict
+        );
         let found = snapshot(121, &[(2, 0.74, 0.16, 10.0)]);
-        let out = t.on_localisation(2, &LocalisationEvent::Found, &found);
+        let out = h.localise(2, LocalisationEvent::Found, &found);
         assert!(moves_for(&out, 2) > 0, "{out:?}");
-        assert_eq!(t.bots[0].driving.unwrap().to, node(&t, "C"));
+        assert_eq!(
+            h.behaviour().bots[0].driving.unwrap().to,
+            node(h.behaviour(), "C")
+        );
     }
 
     #[test]
     fn without_progress_the_team_recovers_then_fails_saying_who_waits_for_what() {
-        let mut t = junction(&[1, 2]);
+        let mut h = Harness::new(junction(&[1, 2]));
         let poses = [(1, 0.8, 0.15, 0.0), (2, 0.7, 0.15, 0.0)];
-        t.start(&snapshot(0, &poses));
+        h.start(&snapshot(0, &poses));
         // Robot 2's moves never finish; each stall is a recovery that sends it back and forth.
         let mut secs = 0;
-        while t.verdict.is_none() && secs < 1000 {
+        while h.behaviour().verdict.is_none() && secs < 1000 {
             secs += 1;
-            t.on_snapshot(&snapshot(secs, &poses));
+            h.snapshot(&snapshot(secs, &poses));
         }
-        let v = t.verdict.clone().expect("fails");
+        let v = h.behaviour().verdict.clone().expect("fails");
         assert!(!v.success);
-        assert_eq!(t.recoveries_total, MAX_RECOVERIES);
+        assert_eq!(h.behaviour().recoveries_total, MAX_RECOVERIES);
         assert!(
             v.summary.contains("deadlock") && v.summary.contains("robot 2 is driving"),
             "{}",
@@ -1317,15 +1303,15 @@ mod tests {
 
     #[test]
     fn a_segment_held_for_seconds_sends_the_robot_back_and_replans() {
-        let mut t = junction(&[2]);
+        let mut h = Harness::new(junction(&[2]));
         let w = snapshot(0, &[(2, 0.7, 0.15, 0.0)]);
-        let out = t.start(&w);
+        let out = h.start(&w);
         for i in &out {
-            t.on_held(i, "another robot in the way", &w);
+            h.hold(*i, "another robot in the way", &w);
         }
-        assert!(t.bots[0].retry);
+        assert!(h.behaviour().bots[0].retry);
         // Planned again from the pose at the next snapshot.
-        let out = t.on_snapshot(&snapshot(1, &[(2, 0.7, 0.15, 0.0)]));
+        let out = h.snapshot(&snapshot(1, &[(2, 0.7, 0.15, 0.0)]));
         assert!(moves_for(&out, 2) > 0);
         for (n, i) in out.iter().enumerate() {
             let reason = if n == 0 {
@@ -1333,32 +1319,34 @@ mod tests {
             } else {
                 "follows a held move"
             };
-            t.on_held(i, reason, &w);
+            h.hold(*i, reason, &w);
         }
-        assert_eq!(t.bots[0].held_why, "another robot in the way");
-        let out = t.on_snapshot(&snapshot(5, &[(2, 0.7, 0.15, 0.0)]));
-        assert_eq!(t.recoveries_total, 1);
-        let leg = t.bots[0].driving.unwrap();
-        assert_eq!(leg.to, node(&t, "F"), "it drives back where it came from");
+        assert_eq!(h.behaviour().bots[0].held_why, "another robot in the way");
+        let out = h.snapshot(&snapshot(5, &[(2, 0.7, 0.15, 0.0)]));
+        assert_eq!(h.behaviour().recoveries_total, 1);
+        let leg = h.behaviour().bots[0].driving.unwrap();
+        assert_eq!(
+            leg.to,
+            node(h.behaviour(), "F"),
+            "it drives back where it came from"
+        );
         assert!(moves_for(&out, 2) > 0, "{out:?}");
     }
 
     #[test]
     fn a_last_segment_whose_drive_was_held_does_not_count_as_arrived() {
-        let mut t = junction(&[2]);
+        let mut h = Harness::new(junction(&[2]));
         // 5 cm before C, facing across the tape: a turn, then a straight onto C.
         let w = snapshot(0, &[(2, 0.75, 0.15, 90.0)]);
-        let out = t.start(&w);
+        let out = h.start(&w);
         assert_eq!(out.len(), 2, "{out:?}");
-        t.on_held(&out[1], "another robot in the way", &w);
+        h.hold(out[1], "another robot in the way", &w);
         let turned = snapshot(1, &[(2, 0.75, 0.15, 0.0)]);
-        let done = RobotEventKind::MoveFinished {
-            id: 0,
-            outcome: MoveOutcome::Completed,
-        };
-        let out = t.on_event(2, &done, &turned);
+        let out = h.finish_move(2, 0, &turned);
         assert!(
-            t.bots[0].driving.is_some_and(|l| l.to == node(&t, "C")),
+            h.behaviour().bots[0]
+                .driving
+                .is_some_and(|l| l.to == node(h.behaviour(), "C")),
             "still driving to C"
         );
         assert!(
@@ -1366,7 +1354,8 @@ mod tests {
                 out.as_slice(),
                 [Intent::Move {
                     robot: 2,
-                    command: MoveCommand::Straight { .. }
+                    command: MoveCommand::Straight { .. },
+                    ..
                 }]
             ),
             "the straight is planned again: {out:?}"

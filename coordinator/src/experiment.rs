@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use actix::Actor;
 use anyhow::{anyhow, bail, Context as _, Result};
-use behaviours::{BehaviourConfig, Registry};
+use behaviours::{BehaviourConfig, Constructor, Registry};
 use protocol::packets::Hello;
 use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
@@ -15,7 +15,7 @@ use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::{Discovered, Discoverer};
 use robot_actor::{Pose, Robot, RobotConfig};
 use simulator::runtime::{self, Pace};
-use simulator::world::{file, presets, World};
+use simulator::world::{file, presets, Track, World};
 use simulator::{BodyFault, SimConfig, Simulation};
 use tokio::sync::oneshot;
 
@@ -23,7 +23,8 @@ use crate::instruments::{Hooks, Run};
 use crate::observer::{Instruments, Observer};
 use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
 use crate::safety::Safety;
-use crate::supervisor::{Abort, Supervisor};
+use crate::supervisor::{Abort, Outcome, Supervisor};
+use crate::world_model::WorldModel;
 
 /// Where the robots come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -34,6 +35,16 @@ pub enum Transport {
     Addresses(Vec<String>),
     /// The robots of an MCAP recording, played back (see `coordinator replay`).
     Replay(std::path::PathBuf),
+    /// Robots behind `pocketfleet-gateway`s on zenoh (feature `zenoh`).
+    #[cfg(feature = "zenoh")]
+    Zenoh {
+        /// The fleet's name.
+        fleet: String,
+        /// How many robots to wait for before the experiment starts.
+        robots: usize,
+        /// Endpoints and configuration.
+        options: robot_actor::link::zenoh::ZenohOptions,
+    },
 }
 
 /// What to run.
@@ -62,6 +73,105 @@ pub struct Plan {
     pub body_faults: Vec<(u16, BodyFault)>,
     /// Kicks of simulated robots: bodies moved without their odometry knowing.
     pub kicks: Vec<Kick>,
+}
+
+impl Plan {
+    /// The default time limit, the CLI's `--duration` default.
+    pub const DEFAULT_DURATION: Duration = Duration::from_secs(600);
+
+    /// `behaviour` on simulated robots: its own world with all its robots, seed 1, as fast as
+    /// possible, [`Plan::DEFAULT_DURATION`], no parameters, faults or kicks.
+    pub fn sim(behaviour: impl Into<String>) -> Plan {
+        Plan {
+            behaviour: behaviour.into(),
+            world: None,
+            robots: None,
+            transport: Transport::Sim,
+            seed: 1,
+            realtime: false,
+            duration: Self::DEFAULT_DURATION,
+            params: std::collections::BTreeMap::new(),
+            faults: Vec::new(),
+            body_faults: Vec::new(),
+            kicks: Vec::new(),
+        }
+    }
+
+    /// Runs in this world preset or file instead of the behaviour's own.
+    pub fn world(mut self, world: impl Into<String>) -> Plan {
+        self.world = Some(world.into());
+        self
+    }
+
+    /// Runs with the world's first `n` robots.
+    pub fn robots(mut self, n: usize) -> Plan {
+        self.robots = Some(n);
+        self
+    }
+
+    /// Seeds the simulation's noise and the behaviour's choices.
+    pub fn seed(mut self, seed: u64) -> Plan {
+        self.seed = seed;
+        self
+    }
+
+    /// Sets the time limit.
+    pub fn duration(mut self, limit: Duration) -> Plan {
+        self.duration = limit;
+        self
+    }
+
+    /// Sets one behaviour parameter, replacing an earlier value for `key`.
+    pub fn param(mut self, key: impl Into<String>, value: impl Into<String>) -> Plan {
+        self.params.insert(key.into(), value.into());
+        self
+    }
+
+    /// Sets several behaviour parameters.
+    pub fn params<K: Into<String>, V: Into<String>>(
+        mut self,
+        params: impl IntoIterator<Item = (K, V)>,
+    ) -> Plan {
+        self.params
+            .extend(params.into_iter().map(|(k, v)| (k.into(), v.into())));
+        self
+    }
+
+    /// Adds a link cut of a simulated robot.
+    pub fn fault(mut self, fault: LinkFault) -> Plan {
+        self.faults.push(fault);
+        self
+    }
+
+    /// Breaks simulated robot `robot` (by id) from the start.
+    pub fn body_fault(mut self, robot: u16, fault: BodyFault) -> Plan {
+        self.body_faults.push((robot, fault));
+        self
+    }
+
+    /// Adds a kick of a simulated robot.
+    pub fn kick(mut self, kick: Kick) -> Plan {
+        self.kicks.push(kick);
+        self
+    }
+
+    /// Takes the robots from `transport` instead of the simulator.
+    pub fn transport(mut self, transport: Transport) -> Plan {
+        self.transport = transport;
+        self
+    }
+
+    /// Paces the simulation to the wall clock (or not).
+    pub fn realtime(mut self, realtime: bool) -> Plan {
+        self.realtime = realtime;
+        self
+    }
+
+    /// Whether this plan runs on a paused clock (see [`crate::actor_system`]): everything but
+    /// robots at addresses, unless paced to the wall clock.
+    pub fn paused_clock(&self) -> bool {
+        !self.realtime && matches!(self.transport, Transport::Sim | Transport::Replay(_))
+    }
 }
 
 /// A kick: simulated robot `robot` (by id) is moved by (`dx_m`, `dy_m`) and turned by
@@ -128,6 +238,68 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
 
 /// Runs one experiment with a recorder, a control panel or trails, and reports it.
 pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments) -> Result<Run> {
+    let setup = resolve(&plan, registry)?;
+    let world = &setup.world;
+    let wall = std::time::Instant::now();
+    let mut hooks = Hooks::new(&plan, &setup.world_name, world.robots.len(), instruments)?;
+    let (discovered, origins, sim) = find_robots(&plan, world, &mut hooks).await?;
+    let discovered = hooks.tap(discovered, world);
+    let observer = hooks.observer(world, sim.clone());
+    // A robot that cannot answer within the whole time limit will not be waited for longer.
+    let deadline = HELLO_DEADLINE.min(plan.duration);
+    let robots = connect_all(&discovered, origins.as_deref(), world, &observer, deadline).await?;
+    let (supervisor, model, done) = start_supervisor(&plan, &setup, &robots);
+    hooks.serve_panel(&supervisor, &robots, world).await?;
+    // From here to the verdict the model is checked against the ground truth.
+    let sampler = ModelSampler::start(sim.as_ref(), &model);
+    if let Some(h) = &sim {
+        inject_faults(h, &plan.faults, &setup.kicks);
+    }
+    let started = tokio::time::Instant::now();
+    let progress = progress_bar(plan.duration, started);
+    let outcome = await_verdict(&supervisor, done, plan.duration).await?;
+    let model_errors = sampler.finish().await?;
+    // A replay runs to the recording's end whatever its behaviour decides, so every recorded
+    // snapshot can be checked.
+    hooks.replay_to_end().await;
+    let experiment_time = tokio::time::Instant::now() - started;
+    if let Some((bar, task)) = progress {
+        task.abort();
+        bar.finish_and_clear();
+    }
+    let ending = Ending {
+        outcome,
+        truth: ground_truth(sim.as_ref()).await,
+        model_errors,
+        experiment_time,
+    };
+    let per_robot = robot_reports(&ending, &robots, world, &model).await?;
+    hooks.linger(&ending.outcome.verdict).await;
+    for (_, robot) in &robots {
+        robot.close();
+    }
+    if let Some(h) = &sim {
+        h.stop();
+    }
+    let report = build_report(&plan, world, ending, per_robot, wall.elapsed());
+    hooks.finish(report, &observer).await
+}
+
+/// A plan checked against its behaviour and world, before anything starts.
+struct Setup {
+    /// The name the world was loaded by.
+    world_name: String,
+    /// The world, cut down to the plan's robots.
+    world: World,
+    track: Arc<Track>,
+    constructor: Constructor,
+    /// Each kick with the index of its robot in the world.
+    kicks: Vec<(usize, Kick)>,
+}
+
+/// Finds the behaviour and loads its world, and checks the parameters, faults and kicks: a bad
+/// plan is refused before any robot is touched.
+fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
     let entry = registry.get(&plan.behaviour).ok_or_else(|| {
         anyhow!(
             "unknown behaviour {:?}; known: {}",
@@ -154,7 +326,6 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         world.robots.truncate(n);
     }
     let track = Arc::new(world.track.clone());
-    // Parameters are checked before any robot is touched.
     let probe = BehaviourConfig {
         robots: world.robots.iter().map(|r| r.id).collect(),
         seed: plan.seed,
@@ -182,39 +353,30 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         }
         kicks.push((index, *k));
     }
-    let wall = std::time::Instant::now();
-    let mut hooks = Hooks::new(&plan, &world_name, world.robots.len(), instruments)?;
-    let (discovered, origins, sim) = match &plan.transport {
+    Ok(Setup {
+        world_name,
+        world,
+        track,
+        constructor: entry.constructor,
+        kicks,
+    })
+}
+
+/// The robots of the plan's transport, their starting poses when the world places them, and the
+/// simulation when there is one.
+async fn find_robots(
+    plan: &Plan,
+    world: &World,
+    hooks: &mut Hooks,
+) -> Result<(
+    Vec<Discovered>,
+    Option<Vec<Pose>>,
+    Option<runtime::SimHandle>,
+)> {
+    Ok(match &plan.transport {
         Transport::Sim => {
-            let origins: Vec<Pose> = world
-                .robots
-                .iter()
-                .map(|r| Pose {
-                    x: r.position.x,
-                    y: r.position.y,
-                    theta: r.heading_rad,
-                })
-                .collect();
-            let mut sim = Simulation::new(
-                world.clone(),
-                SimConfig {
-                    seed: Some(plan.seed),
-                    ..SimConfig::default()
-                },
-            );
-            for &(id, fault) in &plan.body_faults {
-                let i = sim.robot_index(id).ok_or_else(|| {
-                    anyhow!("body fault for robot {id}: no such robot in the world")
-                })?;
-                sim.set_body_fault(i, Some(fault));
-            }
-            let pace = if plan.realtime {
-                Pace::WallClock
-            } else {
-                Pace::TokioClock
-            };
-            let (handle, ends, _task) = runtime::spawn(sim, pace);
-            let found = SimDiscoverer::new(ends).discover().await?;
+            let origins = start_poses(world);
+            let (handle, found) = start_simulation(plan, world).await?;
             (found, Some(origins), Some(handle))
         }
         Transport::Addresses(addrs) => {
@@ -227,96 +389,156 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         }
         Transport::Replay(_) => {
             let (found, simulated) = hooks.replay_connectors()?;
-            let origins = simulated.then(|| {
-                world
-                    .robots
-                    .iter()
-                    .map(|r| Pose {
-                        x: r.position.x,
-                        y: r.position.y,
-                        theta: r.heading_rad,
-                    })
-                    .collect()
-            });
-            (found, origins, None)
+            (found, simulated.then(|| start_poses(world)), None)
         }
+        #[cfg(feature = "zenoh")]
+        Transport::Zenoh {
+            fleet,
+            robots,
+            options,
+        } => {
+            use robot_actor::link::zenoh::{open_session, Keys, ZenohDiscoverer};
+            let keys = Keys::new(fleet)?;
+            let session = open_session(options).await?;
+            let found = ZenohDiscoverer::new(session, keys, *robots, HELLO_DEADLINE)
+                .discover()
+                .await?;
+            if found.len() < *robots {
+                bail!(
+                    "fleet {fleet}: {} of the {robots} robots asked for have a gateway after {} s",
+                    found.len(),
+                    HELLO_DEADLINE.as_secs()
+                );
+            }
+            (found, None, None)
+        }
+    })
+}
+
+/// Where the world places each robot.
+fn start_poses(world: &World) -> Vec<Pose> {
+    world
+        .robots
+        .iter()
+        .map(|r| Pose {
+            x: r.position.x,
+            y: r.position.y,
+            theta: r.heading_rad,
+        })
+        .collect()
+}
+
+/// Starts the world's simulation with the plan's seed, pace and body faults, and finds its robots.
+async fn start_simulation(
+    plan: &Plan,
+    world: &World,
+) -> Result<(runtime::SimHandle, Vec<Discovered>)> {
+    let mut sim = Simulation::new(
+        world.clone(),
+        SimConfig {
+            seed: Some(plan.seed),
+            ..SimConfig::default()
+        },
+    );
+    for &(id, fault) in &plan.body_faults {
+        let i = sim
+            .robot_index(id)
+            .ok_or_else(|| anyhow!("body fault for robot {id}: no such robot in the world"))?;
+        sim.set_body_fault(i, Some(fault));
+    }
+    let pace = if plan.realtime {
+        Pace::WallClock
+    } else {
+        Pace::TokioClock
     };
-    let discovered = hooks.tap(discovered, &world);
-    let observer = hooks.observer(&world, sim.clone());
-    // A robot that cannot answer within the whole time limit will not be waited for longer.
-    let deadline = HELLO_DEADLINE.min(plan.duration);
-    let robots = connect_all(&discovered, origins.as_deref(), &world, &observer, deadline).await?;
-    let ids: Vec<u16> = robots.iter().map(|(id, _)| *id).collect();
+    let (handle, ends, _task) = runtime::spawn(sim, pace);
+    let found = SimDiscoverer::new(ends).discover().await?;
+    Ok((handle, found))
+}
+
+/// Starts the supervisor over the connected robots, running the plan's behaviour; the receiver
+/// gets its outcome.
+fn start_supervisor(
+    plan: &Plan,
+    setup: &Setup,
+    robots: &[(u16, Robot)],
+) -> (
+    actix::Addr<Supervisor>,
+    WorldModel,
+    oneshot::Receiver<Outcome>,
+) {
     let config = BehaviourConfig {
-        robots: ids,
+        robots: robots.iter().map(|(id, _)| *id).collect(),
         seed: plan.seed,
         params: plan.params.clone(),
-        track: Arc::clone(&track),
+        track: Arc::clone(&setup.track),
         ..BehaviourConfig::default()
     };
     let (done_tx, done_rx) = oneshot::channel();
     let supervisor = Supervisor::new(
-        robots.clone(),
-        Arc::clone(&track),
-        (world.arena.width_m, world.arena.height_m),
-        entry.constructor,
+        robots.to_vec(),
+        Arc::clone(&setup.track),
+        (setup.world.arena.width_m, setup.world.arena.height_m),
+        setup.constructor,
         config,
         Duration::from_millis(100),
         Safety::default(),
         done_tx,
     );
     let model = supervisor.model();
-    let supervisor = supervisor.start();
-    hooks.serve_panel(&supervisor, &robots, &world).await?;
-    // From here to the verdict the model is checked against the ground truth.
-    let (stop_sampling, stopped) = oneshot::channel();
-    let sampler = sim
-        .clone()
-        .map(|h| tokio::spawn(sample_model_errors(h, model.robots(), stopped)));
-    if let Some(h) = &sim {
-        for fault in plan.faults.iter().copied() {
-            let h = h.clone();
-            tokio::spawn(async move {
-                tokio::time::sleep(fault.at).await;
-                h.set_link_up(fault.robot, false);
-                tokio::time::sleep(fault.duration).await;
-                h.set_link_up(fault.robot, true);
-            });
-        }
-        for (index, kick) in kicks {
-            let h = h.clone();
-            tokio::spawn(async move {
-                tokio::time::sleep(kick.at).await;
-                let (mut dx, mut dy) = (kick.dx_m, kick.dy_m);
-                if kick.sideways_m != 0.0 {
-                    let heading = h
-                        .poses()
-                        .await
-                        .and_then(|p| p.robots.get(index).map(|(_, p)| p.theta))
-                        .unwrap_or(0.0);
-                    dx -= kick.sideways_m * heading.sin();
-                    dy += kick.sideways_m * heading.cos();
-                }
-                match h.displace(index, dx, dy, kick.dtheta_rad).await {
-                    Ok(p) => tracing::info!(
-                        robot = kick.robot,
-                        x = p.x,
-                        y = p.y,
-                        theta = p.theta,
-                        "kicked"
-                    ),
-                    Err(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
-                }
-            });
-        }
+    (supervisor.start(), model, done_rx)
+}
+
+/// Schedules the plan's link cuts and kicks on the simulation's clock.
+fn inject_faults(h: &runtime::SimHandle, faults: &[LinkFault], kicks: &[(usize, Kick)]) {
+    for fault in faults.iter().copied() {
+        let h = h.clone();
+        tokio::spawn(async move {
+            tokio::time::sleep(fault.at).await;
+            h.set_link_up(fault.robot, false);
+            tokio::time::sleep(fault.duration).await;
+            h.set_link_up(fault.robot, true);
+        });
     }
-    let started = tokio::time::Instant::now();
-    let progress = progress_bar(plan.duration, started);
-    let mut done_rx = done_rx;
+    for &(index, kick) in kicks {
+        let h = h.clone();
+        tokio::spawn(async move {
+            tokio::time::sleep(kick.at).await;
+            let (mut dx, mut dy) = (kick.dx_m, kick.dy_m);
+            if kick.sideways_m != 0.0 {
+                let heading = h
+                    .poses()
+                    .await
+                    .and_then(|p| p.robots.get(index).map(|(_, p)| p.theta))
+                    .unwrap_or(0.0);
+                dx -= kick.sideways_m * heading.sin();
+                dy += kick.sideways_m * heading.cos();
+            }
+            match h.displace(index, dx, dy, kick.dtheta_rad).await {
+                Ok(p) => tracing::info!(
+                    robot = kick.robot,
+                    x = p.x,
+                    y = p.y,
+                    theta = p.theta,
+                    "kicked"
+                ),
+                Err(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
+            }
+        });
+    }
+}
+
+/// Waits for the supervisor's outcome; at the time limit or on Ctrl-C it is told to abort, and
+/// still sends its outcome once every robot is stopped.
+async fn await_verdict(
+    supervisor: &actix::Addr<Supervisor>,
+    mut done: oneshot::Receiver<Outcome>,
+    limit: Duration,
+) -> Result<Outcome> {
     let aborted = tokio::select! {
-        o = &mut done_rx => Some(o),
-        _ = tokio::time::sleep(plan.duration) => {
-            supervisor.do_send(Abort(format!("did not finish within {:?}", plan.duration)));
+        o = &mut done => Some(o),
+        _ = tokio::time::sleep(limit) => {
+            supervisor.do_send(Abort(format!("did not finish within {limit:?}")));
             None
         }
         _ = tokio::signal::ctrl_c() => {
@@ -324,37 +546,43 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             None
         }
     };
-    // After an abort the supervisor stops every robot and still sends its outcome.
-    let outcome = match aborted {
+    match aborted {
         Some(o) => o,
-        None => done_rx.await,
+        None => done.await,
     }
-    .context("supervisor stopped without a verdict")?;
-    let _ = stop_sampling.send(());
-    let model_errors = match sampler {
-        Some(task) => task.await.context("the model error sampler failed")?,
-        None => ModelErrors::default(),
-    };
-    // A replay runs to the recording's end whatever its behaviour decides, so every recorded
-    // snapshot can be checked.
-    hooks.replay_to_end().await;
-    let experiment_time = tokio::time::Instant::now() - started;
-    if let Some((bar, task)) = progress {
-        task.abort();
-        bar.finish_and_clear();
-    }
-    // Let stop commands reach the robots before the ground truth is taken.
+    .context("supervisor stopped without a verdict")
+}
+
+/// The simulation's ground truth once stop commands have had time to reach the robots.
+async fn ground_truth(sim: Option<&runtime::SimHandle>) -> Option<runtime::Truth> {
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let truth = match &sim {
+    match sim {
         Some(h) => h.truth().await,
         None => None,
-    };
+    }
+}
+
+/// What a run left to report once its robots stopped.
+struct Ending {
+    outcome: Outcome,
+    truth: Option<runtime::Truth>,
+    model_errors: ModelErrors,
+    experiment_time: Duration,
+}
+
+/// Each robot's final state, estimate and ground truth.
+async fn robot_reports(
+    ending: &Ending,
+    robots: &[(u16, Robot)],
+    world: &World,
+    model: &WorldModel,
+) -> Result<Vec<RobotReport>> {
+    let truth = ending.truth.as_ref();
     let mut per_robot = Vec::new();
     for (i, (id, robot)) in robots.iter().enumerate() {
         let snap = robot.snapshot().await?;
-        let truth_pose = truth
-            .as_ref()
-            .and_then(|t| t.robots.iter().find(|(r, _)| r == id).map(|(_, p)| *p));
+        let truth_pose =
+            truth.and_then(|t| t.robots.iter().find(|(r, _)| r == id).map(|(_, p)| *p));
         let estimate = model.robots().get(id).map_or(snap.pose, |v| v.pose);
         let off_tape_m = truth_pose.and_then(|p| {
             let sensor = nalgebra::Point2::new(
@@ -363,12 +591,13 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             );
             world.track.nearest(sensor).map(|n| n.distance_m)
         });
-        let worst = model_errors.worst.get(id);
+        let worst = ending.model_errors.worst.get(id);
         per_robot.push(RobotReport {
             id: *id,
             worst_model_error_m: worst.map(|w| w.0),
             worst_model_heading_error_rad: worst.map(|w| w.1),
-            localisation: outcome
+            localisation: ending
+                .outcome
                 .localisation
                 .iter()
                 .find(|(r, _)| r == id)
@@ -382,7 +611,7 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
                 y: p.y,
                 theta: p.theta,
             }),
-            distance_m: truth.as_ref().and_then(|t| t.distances_m.get(i).copied()),
+            distance_m: truth.and_then(|t| t.distances_m.get(i).copied()),
             link: snap.link,
             wheels_mps: (
                 f64::from(snap.state.wheels.left_mps),
@@ -390,22 +619,32 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
             ),
         });
     }
-    hooks.linger(&outcome.verdict).await;
-    for (_, robot) in &robots {
-        robot.close();
-    }
-    if let Some(h) = &sim {
-        h.stop();
-    }
-    let report = Report {
+    Ok(per_robot)
+}
+
+/// The experiment's report.
+fn build_report(
+    plan: &Plan,
+    world: &World,
+    ending: Ending,
+    robots: Vec<RobotReport>,
+    wall_time: Duration,
+) -> Report {
+    let Ending {
+        outcome,
+        truth,
+        model_errors,
+        experiment_time,
+    } = ending;
+    Report {
         behaviour: plan.behaviour.clone(),
         world: world.name.clone(),
         seed: plan.seed,
         verdict: outcome.verdict,
-        robots: per_robot,
+        robots,
         obstacles: truth
             .as_ref()
-            .map(|t| obstacle_reports(&world, t))
+            .map(|t| obstacle_reports(world, t))
             .unwrap_or_default(),
         ground_truth: truth.as_ref().map(|t| GroundTruth {
             robot_contacts: t.robot_collisions,
@@ -421,9 +660,8 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         encounters: outcome.encounters.len(),
         restarts: outcome.restarts,
         experiment_time,
-        wall_time: wall.elapsed(),
-    };
-    hooks.finish(report, &observer).await
+        wall_time,
+    }
 }
 
 /// How often, on the experiment's clock, the world model is checked against the ground truth.
@@ -436,6 +674,32 @@ struct ModelErrors {
     worst: std::collections::BTreeMap<u16, (f64, f64)>,
     /// How many times the model was checked.
     samples: usize,
+}
+
+/// The model error sampler of a simulated run, from the supervisor's start to the verdict.
+struct ModelSampler {
+    stop: oneshot::Sender<()>,
+    task: Option<tokio::task::JoinHandle<ModelErrors>>,
+}
+
+impl ModelSampler {
+    /// Starts sampling when there is a simulation to take the truth from.
+    fn start(sim: Option<&runtime::SimHandle>, model: &WorldModel) -> Self {
+        let (stop, stopped) = oneshot::channel();
+        let task = sim
+            .cloned()
+            .map(|h| tokio::spawn(sample_model_errors(h, model.robots(), stopped)));
+        Self { stop, task }
+    }
+
+    /// Stops sampling and gives the worst errors seen.
+    async fn finish(self) -> Result<ModelErrors> {
+        let _ = self.stop.send(());
+        match self.task {
+            Some(task) => task.await.context("the model error sampler failed"),
+            None => Ok(ModelErrors::default()),
+        }
+    }
 }
 
 /// Compares every robot's model pose with its true pose each [`MODEL_SAMPLE_PERIOD`] until `stop`
@@ -486,22 +750,12 @@ async fn sample_model_errors(
     errors
 }
 
-/// An angle in (−π, π].
-fn wrap_rad(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let w = (a + PI).rem_euclid(TAU) - PI;
-    if w == -PI {
-        PI
-    } else {
-        w
-    }
-}
+use world::wrap_angle as wrap_rad;
 
 /// The longest wait for a robot's hello (shortened to the experiment's time limit).
 pub const HELLO_DEADLINE: Duration = Duration::from_secs(10);
 
-/// Where the line sensor sits ahead of the body centre (the simulated robot's).
-const SENSOR_AHEAD_M: f64 = 0.016;
+use world::robot::LINE_SENSOR_AHEAD_M as SENSOR_AHEAD_M;
 
 fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport> {
     world

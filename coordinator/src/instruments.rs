@@ -19,7 +19,7 @@ use tokio::time::Instant;
 
 use crate::experiment::{Plan, Transport};
 use crate::observer::{
-    track_lines, BoxShape, Instruments, Observed, Observer, ObserverSetup, TakeObserved, BODY_M,
+    track_lines, BoxShape, Instruments, Observed, Observer, ObserverSetup, TakeObserved,
 };
 use crate::panel::{PanelContext, PanelServer};
 use crate::record::{RecordStats, Recorder, RunInfo, Tap, Topic};
@@ -156,7 +156,7 @@ impl Hooks {
             "track": track_lines(&world.track),
             "boxes": boxes(world).iter().map(|b| json!({"size": [b.size.0, b.size.1], "pose": b.pose})).collect::<Vec<_>>(),
             "robots": robots.iter().map(|(id, _)| *id).collect::<Vec<_>>(),
-            "body": [BODY_M.0, BODY_M.1],
+            "body": [world::robot::LENGTH_M, world::robot::WIDTH_M],
             "replay": self.replay.is_some(),
         });
         let server = crate::panel::serve(

@@ -14,6 +14,8 @@
 #![warn(missing_docs)]
 
 pub mod experiment;
+#[doc = include_str!("../../docs/writing-behaviours.md")]
+pub mod guide {}
 pub mod instruments;
 pub mod observer;
 pub mod panel;
@@ -45,4 +47,20 @@ pub fn actor_system(paused: bool) -> actix::SystemRunner {
             .build()
             .expect("a current-thread tokio runtime builds")
     })
+}
+
+/// Runs one experiment to its end on an actor system of its own (paused when
+/// [`Plan::paused_clock`]), blocking the calling thread, which must not run an actor system
+/// already, and reports it.
+pub fn run_blocking(plan: Plan, registry: &behaviours::Registry) -> anyhow::Result<Report> {
+    Ok(run_blocking_with(plan, registry, Instruments::default())?.report)
+}
+
+/// [`run_blocking`] with a recorder, a control panel or trails.
+pub fn run_blocking_with(
+    plan: Plan,
+    registry: &behaviours::Registry,
+    instruments: Instruments,
+) -> anyhow::Result<Run> {
+    actor_system(plan.paused_clock()).block_on(run_with(plan, registry, instruments))
 }

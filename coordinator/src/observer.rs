@@ -20,6 +20,7 @@ use simulator::runtime::SimHandle;
 use simulator::world::Track;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
+use world::robot;
 
 use crate::record::{fox_pose, fox_time, layout_json, Recorder, Topic};
 use crate::world_model::WorldModel;
@@ -28,8 +29,6 @@ use crate::world_model::WorldModel;
 pub const SNAPSHOT_PERIOD: Duration = Duration::from_millis(100);
 /// A trail point is kept once the robot has moved this far from the previous one.
 const TRAIL_STEP_M: f64 = 0.005;
-/// Robot footprint drawn in scenes (the simulated PocketBot2's), metres.
-pub const BODY_M: (f64, f64) = (0.048, 0.032);
 
 /// What a run is observed for, beyond the report.
 #[derive(Default)]
@@ -228,7 +227,7 @@ impl Observer {
                 "timestamp": ts, "frame_id": "world", "id": format!("robot-{}", v.id),
                 "lifetime": fox_time(0), "frame_locked": false, "metadata": [],
                 "cubes": [{"pose": fox_pose(v.pose.x, v.pose.y, v.pose.theta),
-                    "size": {"x": BODY_M.0, "y": BODY_M.1, "z": 0.02}, "color": colour}],
+                    "size": {"x": robot::LENGTH_M, "y": robot::WIDTH_M, "z": 0.02}, "color": colour}],
                 "arrows": [{"pose": fox_pose(v.pose.x, v.pose.y, v.pose.theta), "shaft_length": 0.03,
                     "shaft_diameter": 0.004, "head_length": 0.012, "head_diameter": 0.01,
                     "color": {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0}}],
@@ -286,7 +285,7 @@ pub fn view_json(v: &RobotView, updates: u64) -> Value {
         "pose": {"x": v.pose.x, "y": v.pose.y, "theta": v.pose.theta},
         "odometry": {"x": v.odometry.x, "y": v.odometry.y, "theta": v.odometry.theta},
         "pending_moves": v.pending_moves,
-        "on_track": v.on_track.map(|(e, o, d)| json!([e, o, d])),
+        "on_track": v.on_track.map(|p| json!([p.edge, p.along_m, p.offset_m])),
         "uncertainty": {"position_m": v.uncertainty.position_m, "heading_rad": v.uncertainty.heading_rad},
         "localisation": match v.localisation {
             behaviours::Localisation::Tracking => "tracking",

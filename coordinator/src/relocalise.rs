@@ -18,6 +18,8 @@ use behaviours::{MoveCommand, Pose, RobotView};
 use nalgebra::{Point2, Vector2};
 use simulator::world::Track;
 use tokio::time::Instant;
+use world::robot::LINE_SENSOR_AHEAD_M;
+use world::wrap_angle;
 
 use crate::world_model::RELOCATE_M;
 
@@ -26,8 +28,6 @@ use crate::world_model::RELOCATE_M;
 const SEARCH_MPS: f32 = 0.03;
 /// Turning speed (wheel speed) of the routine's turns.
 const TURN_MPS: f32 = 0.03;
-/// Where the line sensor sits ahead of the robot's centre.
-const SENSOR_AHEAD_M: f64 = 0.016;
 /// Longest wait for the wheels to stop after a stop command.
 const BRAKE_LIMIT: Duration = Duration::from_millis(600);
 /// Below this wheel speed a robot counts as stopped.
@@ -208,7 +208,7 @@ impl Relocaliser {
     /// covers the reach on both sides.
     fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
         let across = Vector2::new(-self.tape.y, self.tape.x);
-        let reach = (self.reach_m + SENSOR_AHEAD_M) as f32;
+        let reach = (self.reach_m + LINE_SENSOR_AHEAD_M) as f32;
         vec![
             turn_to(pose.theta, across.y.atan2(across.x)),
             straight(reach),
@@ -250,8 +250,7 @@ fn straight(distance_m: f32) -> MoveCommand {
 }
 
 fn turn_to(from: f64, to: f64) -> MoveCommand {
-    let a =
-        (to - from + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+    let a = wrap_angle(to - from);
     MoveCommand::Rotate {
         angle_deg: a.to_degrees() as f32,
         speed_mps: TURN_MPS,

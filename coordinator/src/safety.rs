@@ -24,8 +24,8 @@ pub struct Safety {
 impl Default for Safety {
     fn default() -> Self {
         Self {
-            length_m: 0.048,
-            width_m: 0.032,
+            length_m: world::robot::LENGTH_M,
+            width_m: world::robot::WIDTH_M,
             margin_m: 0.0015,
             horizon_s: 0.5,
         }
@@ -285,6 +285,7 @@ mod tests {
                 distance_m: d,
                 speed_mps: 0.2,
             },
+            tag: 0,
         }
     }
 
@@ -308,6 +309,7 @@ mod tests {
                 angle_deg: 90.0,
                 speed_mps: 0.1,
             },
+            tag: 0,
         };
         assert!(s.check(&spin, &w).is_ok());
         assert!(s
@@ -335,6 +337,7 @@ mod tests {
                 angle_deg: 90.0,
                 speed_mps: 0.1,
             },
+            tag: 0,
         };
         assert!(
             s.check(&turn, &w).is_err(),

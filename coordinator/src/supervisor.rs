@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actix::prelude::*;
-use behaviours::actor::{Event, Held, Localised, Panicked, Reply, Snapshot, Start};
+use behaviours::actor::{FromRobot, Held, Localised, Panicked, Reply, Snapshot, Start};
 use behaviours::{
     BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, LocalisationEvent,
     MoveOutcome, Verdict, WorldSnapshot,
@@ -76,6 +76,9 @@ pub struct Supervisor {
     /// Lost robots being re-localised; every intent for them is held meanwhile.
     relocalising: std::collections::HashMap<u16, Relocaliser>,
 }
+
+/// The tag of the re-localisation routine's moves (the behaviour never hears of them).
+const RELOCALISATION_TAG: u32 = u32::MAX;
 
 /// A robot that is moving within this distance (centre to centre) of a lost robot, plus twice
 /// the lost robot's uncertainty, is stopped too: the lost one may be anywhere in that reach.
@@ -318,7 +321,11 @@ impl Supervisor {
                 tracing::debug!(robot = id, ?moves, "re-localisation moves");
                 let mut held = Vec::new();
                 for command in moves {
-                    let intent = Intent::Move { robot: id, command };
+                    let intent = Intent::Move {
+                        robot: id,
+                        command,
+                        tag: RELOCALISATION_TAG,
+                    };
                     if !held.is_empty() || !self.carry_out_checked(intent, world) {
                         held.push(command);
                     }
@@ -427,7 +434,7 @@ impl Supervisor {
         };
         let addr = robot.addr();
         match intent {
-            Intent::Move { command, .. } => addr.do_send(Enqueue(command)),
+            Intent::Move { command, tag, .. } => addr.do_send(Enqueue::tagged(command, tag)),
             Intent::FollowLine { speed, .. } => addr.do_send(Command::FollowLine(speed)),
             Intent::WheelSpeeds { left, right, .. } => {
                 addr.do_send(Command::WheelSpeeds(left, right))
@@ -479,7 +486,7 @@ impl Handler<RobotEvent> for Supervisor {
                 let encounter = Encounter {
                     observer: e.robot_id,
                     seen: enc.robot_id,
-                    side: enc.side,
+                    side: behaviours::Side::try_from(enc.side).unwrap_or(behaviours::Side::Front),
                     relative_heading_deg: enc.relative_heading_deg,
                     range_mm: enc.range_mm,
                     at: e.at - self.started_at,
@@ -507,7 +514,7 @@ impl Handler<RobotEvent> for Supervisor {
             }
         }
         if let Some(b) = &self.behaviour {
-            let msg = Event {
+            let msg = FromRobot {
                 robot: e.robot_id,
                 kind: e.kind,
                 world: self.snapshot_peek(),

@@ -2,7 +2,7 @@
 //! geometry), reflected state and place on the track, in a `DashMap` that the supervisor writes
 //! and a recorder or panel reads concurrently.
 
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::PI;
 use std::sync::Arc;
 
 use behaviours::{Localisation, Pose, PoseUncertainty, RobotView};
@@ -10,9 +10,9 @@ use dashmap::DashMap;
 use nalgebra::{Matrix3, Point2, RowVector3, Vector2, Vector3};
 use robot_actor::StateUpdated;
 use simulator::world::Track;
+use world::robot::LINE_SENSOR_AHEAD_M;
+use world::wrap_angle;
 
-/// Where the line sensor sits ahead of the robot centre, for placing a robot on the tape.
-const SENSOR_AHEAD_M: f64 = 0.016;
 /// A robot whose sensor is farther than this from any tape is not on the track.
 const ON_TRACK_M: f64 = 0.02;
 /// The tape the sensor sees is matched to the modelled tape only this close: farther, the pose
@@ -262,10 +262,6 @@ fn junction_zones(track: &Track) -> Vec<(Point2<f64>, f64)> {
         .collect()
 }
 
-fn wrap(a: f64) -> f64 {
-    (a + PI).rem_euclid(TAU) - PI
-}
-
 /// The shared world model.
 #[derive(Clone)]
 pub struct WorldModel {
@@ -324,7 +320,7 @@ impl WorldModel {
             .map(|e| e.clone())
             .unwrap_or_default();
         let (driven, turned) = e.last_odometry.map_or((0.0, 0.0), |p| {
-            let turned = wrap(u.pose.theta - p.theta);
+            let turned = wrap_angle(u.pose.theta - p.theta);
             let mid = p.theta + turned / 2.0;
             let step = Vector2::new(u.pose.x - p.x, u.pose.y - p.y);
             (step.dot(&Vector2::new(mid.cos(), mid.sin())), turned)
@@ -484,13 +480,20 @@ impl WorldModel {
         };
         self.estimates.insert(u.robot_id, e);
         let (s, c) = pose.theta.sin_cos();
-        let sensor = Point2::new(pose.x + SENSOR_AHEAD_M * c, pose.y + SENSOR_AHEAD_M * s);
+        let sensor = Point2::new(
+            pose.x + LINE_SENSOR_AHEAD_M * c,
+            pose.y + LINE_SENSOR_AHEAD_M * s,
+        );
         // Only robots over tape are looked up: most of the floor is white.
         let on_track = if self.track.floor_at(sensor).ir_reflectance < 0.9 {
             self.track
                 .nearest(sensor)
                 .filter(|n| n.distance_m < ON_TRACK_M)
-                .map(|n| (n.edge, n.offset_m, n.distance_m))
+                .map(|n| behaviours::TrackPosition {
+                    edge: n.edge,
+                    along_m: n.offset_m,
+                    offset_m: n.distance_m,
+                })
         } else {
             None
         };
@@ -525,7 +528,7 @@ impl WorldModel {
             ));
         }
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
-        let sensor = Point2::new(pose.x, pose.y) + heading * SENSOR_AHEAD_M;
+        let sensor = Point2::new(pose.x, pose.y) + heading * LINE_SENSOR_AHEAD_M;
         if sees_tape {
             e.no_tape_m = 0.0;
             let right = Vector2::new(heading.y, -heading.x);
@@ -597,7 +600,7 @@ impl WorldModel {
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
         let centre = Point2::new(pose.x, pose.y);
-        let arm = heading * SENSOR_AHEAD_M + right * (f64::from(position_um) * 1e-6);
+        let arm = heading * LINE_SENSOR_AHEAD_M + right * (f64::from(position_um) * 1e-6);
         let seen = centre + arm;
         let at = self.track.nearest(seen)?;
         if self.in_junction(at.point) || at.tangent.dot(&heading).abs() < gate_rad.cos() {
@@ -636,7 +639,7 @@ impl WorldModel {
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
         let seen = Point2::new(pose.x, pose.y)
-            + heading * SENSOR_AHEAD_M
+            + heading * LINE_SENSOR_AHEAD_M
             + right * (f64::from(position_um) * 1e-6);
         let n = self.track.nearest(seen)?;
         if n.distance_m > RELOCATE_M || self.in_junction(n.point) {
@@ -670,7 +673,7 @@ impl WorldModel {
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
         let centre = Point2::new(pose.x, pose.y);
-        let sensor = centre + heading * SENSOR_AHEAD_M;
+        let sensor = centre + heading * LINE_SENSOR_AHEAD_M;
         let seen = sensor + right * (f64::from(position_um) * 1e-6);
         let at_seen = self.track.nearest(seen)?;
         if at_seen.distance_m > gate_m || self.in_junction(at_seen.point) {
@@ -694,7 +697,7 @@ impl WorldModel {
         let straight = !self.track.edges()[at_centre.edge].is_arc()
             && !self.track.edges()[at_seen.edge].is_arc();
         let tape_dir = at_centre.tangent * at_centre.tangent.dot(&heading).signum();
-        let err = wrap(tape_dir.y.atan2(tape_dir.x) - pose.theta);
+        let err = wrap_angle(tape_dir.y.atan2(tape_dir.x) - pose.theta);
         let (dtheta, heading_gain) = if straight {
             (HEADING_GAIN * err, HEADING_GAIN)
         } else {
@@ -733,7 +736,7 @@ impl WorldModel {
             _ => return None,
         };
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
-        let sensor = Point2::new(pose.x, pose.y) + heading * SENSOR_AHEAD_M;
+        let sensor = Point2::new(pose.x, pose.y) + heading * LINE_SENSOR_AHEAD_M;
         let nodes = self.track.nodes();
         let end = self
             .track
@@ -835,12 +838,12 @@ mod tests {
         let (mut worst_lateral, mut worst_heading) = (0.0f64, 0.0f64);
         for k in 0..4000 {
             let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
-            let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+            let sensor = Point2::new(truth.x, truth.y) + heading * LINE_SENSOR_AHEAD_M;
             let near = track.nearest(sensor).unwrap();
             // Pure pursuit of a tape point 20 mm ahead of the sensor, plus a slow weave.
             let target = near.point + near.tangent * 0.02;
             let want = (target.y - truth.y).atan2(target.x - truth.x);
-            let omega = 8.0 * wrap(want - truth.theta) + 0.3 * (k as f64 * 0.05).sin();
+            let omega = 8.0 * wrap_angle(want - truth.theta) + 0.3 * (k as f64 * 0.05).sin();
             let dth = omega * dt;
             let ds = v * dt;
             let mid = truth.theta + dth / 2.0;
@@ -858,7 +861,7 @@ mod tests {
             };
             let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
             let right = Vector2::new(heading.y, -heading.x);
-            let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+            let sensor = Point2::new(truth.x, truth.y) + heading * LINE_SENSOR_AHEAD_M;
             let near = track.nearest(sensor).unwrap();
             let mut state = protocol::RobotState::default();
             state.line.position_um = ((near.point - sensor).dot(&right) * 1e6) as i16;
@@ -874,7 +877,7 @@ mod tests {
             if k > 200 {
                 let lateral = right.dot(&Vector2::new(est.x - truth.x, est.y - truth.y));
                 worst_lateral = worst_lateral.max(lateral.abs());
-                worst_heading = worst_heading.max(wrap(est.theta - truth.theta).abs());
+                worst_heading = worst_heading.max(wrap_angle(est.theta - truth.theta).abs());
             }
         }
         let v = model.views()[0].clone();
@@ -896,7 +899,7 @@ mod tests {
     fn sense(track: &Track, truth: Pose) -> protocol::RobotState {
         let heading = Vector2::new(truth.theta.cos(), truth.theta.sin());
         let right = Vector2::new(heading.y, -heading.x);
-        let sensor = Point2::new(truth.x, truth.y) + heading * SENSOR_AHEAD_M;
+        let sensor = Point2::new(truth.x, truth.y) + heading * LINE_SENSOR_AHEAD_M;
         let dark: Vec<f64> = (0..8)
             .map(|k| (k as f64 - 3.5) * 0.003)
             .filter(|&off| {
@@ -990,7 +993,7 @@ mod tests {
         /// towards it.
         fn drive_to(&mut self, x: f64, y: f64, scale: f64, drift: f64) -> f64 {
             let want = (y - self.truth.y).atan2(x - self.truth.x);
-            let turn = wrap(want - self.truth.theta);
+            let turn = wrap_angle(want - self.truth.theta);
             let n = (turn.abs() / 0.05).ceil() as usize;
             for _ in 0..n {
                 self.go(0.0, turn / n as f64, scale, drift);

@@ -1,11 +1,10 @@
 //! The built-in behaviours run through the coordinator on simulated robots, headless and faster
 //! than real time, judged from the simulator's ground truth and not only by their own verdicts.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
 use behaviours::Registry;
-use coordinator::{BodyFault, Plan, Report, Transport};
+use coordinator::{BodyFault, Plan, Report};
 
 fn run(
     behaviour: &str,
@@ -14,12 +13,11 @@ fn run(
     seed: u64,
     params: &[(&str, &str)],
 ) -> Report {
-    coordinator::actor_system(true)
-        .block_on(coordinator::run(
-            plan(behaviour, world, robots, seed, params),
-            &Registry::builtin(),
-        ))
-        .expect("experiment runs")
+    coordinator::run_blocking(
+        plan(behaviour, world, robots, seed, params),
+        &Registry::builtin(),
+    )
+    .expect("experiment runs")
 }
 
 fn plan(
@@ -30,20 +28,12 @@ fn plan(
     params: &[(&str, &str)],
 ) -> Plan {
     Plan {
-        behaviour: behaviour.into(),
         world: world.map(Into::into),
         robots,
-        transport: Transport::Sim,
-        seed,
-        realtime: false,
-        duration: Duration::from_secs(3000),
-        params: params
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect::<BTreeMap<_, _>>(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
+        ..Plan::sim(behaviour)
+            .seed(seed)
+            .duration(Duration::from_secs(3000))
+            .params(params.iter().copied())
     }
 }
 
@@ -58,13 +48,11 @@ fn broken(
     robot: u16,
     fault: BodyFault,
 ) -> Report {
-    let mut p = plan(behaviour, world, robots, 1, params);
-    p.body_faults.push((robot, fault));
-    // A stall shows within seconds; the limit only keeps a regression from hanging CI.
-    p.duration = Duration::from_secs(120);
-    let r = coordinator::actor_system(true)
-        .block_on(coordinator::run(p, &Registry::builtin()))
-        .expect("experiment runs");
+    let p = plan(behaviour, world, robots, 1, params)
+        .body_fault(robot, fault)
+        // A stall shows within seconds; the limit only keeps a regression from hanging CI.
+        .duration(Duration::from_secs(120));
+    let r = coordinator::run_blocking(p, &Registry::builtin()).expect("experiment runs");
     assert!(!r.verdict.success, "{r}");
     let why = &r.verdict.summary;
     assert!(
@@ -132,7 +120,10 @@ fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
         assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
         let b = the_box(&r);
         // Off the tape by more than a body length (48 mm).
-        assert!(b.clear_of_tape_m > 0.048, "seed {seed}: {r}");
+        assert!(
+            b.clear_of_tape_m > world::robot::LENGTH_M,
+            "seed {seed}: {r}"
+        );
         for robot in &r.robots {
             // Back on the tape, having lapped again after the push.
             assert!(robot.off_tape_m.unwrap() < 0.008, "seed {seed}: {r}");

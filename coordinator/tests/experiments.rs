@@ -4,31 +4,17 @@ use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Verdict, WorldSnapshot};
-use coordinator::{LinkFault, Plan, Report, Transport};
-
-fn paused<F: std::future::Future>(f: F) -> F::Output {
-    coordinator::actor_system(true).block_on(f)
-}
+use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Team, Verdict, WorldSnapshot};
+use coordinator::{LinkFault, Plan, Report};
 
 fn plan(behaviour: &str, robots: usize) -> Plan {
-    Plan {
-        behaviour: behaviour.into(),
-        world: None,
-        robots: Some(robots),
-        transport: Transport::Sim,
-        seed: 1,
-        realtime: false,
-        duration: Duration::from_secs(60),
-        params: Default::default(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
-    }
+    Plan::sim(behaviour)
+        .robots(robots)
+        .duration(Duration::from_secs(60))
 }
 
 fn run(plan: Plan, registry: &Registry) -> Report {
-    paused(coordinator::run(plan, registry)).expect("experiment runs")
+    coordinator::run_blocking(plan, registry).expect("experiment runs")
 }
 
 #[test]
@@ -75,8 +61,7 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
 
 #[test]
 fn a_kicked_robot_is_where_its_model_is_not() {
-    let mut p = plan("square_walk", 3);
-    p.kicks.push(coordinator::Kick {
+    let p = plan("square_walk", 3).kick(coordinator::Kick {
         robot: 2,
         at: Duration::from_secs(1),
         dx_m: 0.0,
@@ -107,23 +92,24 @@ struct Fragile {
 static PANICKED_ONCE: AtomicBool = AtomicBool::new(false);
 
 impl Behaviour for Fragile {
-    fn start(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
-        self.inner.start(world)
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.inner.start(world, team)
     }
-    fn on_snapshot(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
         self.snapshots += 1;
         if self.snapshots == 2 && !PANICKED_ONCE.swap(true, Ordering::SeqCst) {
             panic!("deliberate failure");
         }
-        self.inner.on_snapshot(world)
+        self.inner.on_snapshot(world, team)
     }
     fn on_event(
         &mut self,
         robot: u16,
-        e: &behaviours::RobotEventKind,
+        e: &behaviours::Event,
         w: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
-        self.inner.on_event(robot, e, w)
+        self.inner.on_event(robot, e, w, team)
     }
     fn verdict(&self) -> Option<Verdict> {
         self.inner.verdict()
@@ -186,8 +172,7 @@ fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
 
 #[test]
 fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
-    let mut p = plan("square_walk", 2);
-    p.faults.push(LinkFault {
+    let p = plan("square_walk", 2).fault(LinkFault {
         robot: 0,
         at: Duration::from_millis(1500),
         duration: Duration::from_millis(1500),

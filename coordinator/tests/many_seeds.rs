@@ -8,32 +8,20 @@
 //! of their own, in the test profile the suite has already built (about 2 minutes on 2 cores):
 //! `cargo test -p coordinator --test many_seeds -- --ignored`.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
 use behaviours::Registry;
-use coordinator::{Plan, Report, Transport};
+use coordinator::{Plan, Report};
 
 /// The model's error bound at every snapshot: a third of a robot's width.
 const MODEL_ERROR_BOUND_M: f64 = 0.03;
 
 fn plan(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Plan {
-    Plan {
-        behaviour: "traffic_control".into(),
-        world: Some(world.into()),
-        robots: None,
-        transport: Transport::Sim,
-        seed,
-        realtime: false,
-        duration: Duration::from_secs(duration_s),
-        params: params
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect::<BTreeMap<_, _>>(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
-    }
+    Plan::sim("traffic_control")
+        .world(world)
+        .seed(seed)
+        .duration(Duration::from_secs(duration_s))
+        .params(params.iter().copied())
 }
 
 /// Runs seeds 1–10 two at a time (each in its own actor system) and checks each report.
@@ -47,12 +35,11 @@ fn seeds_1_to_10(world: &str, duration_s: u64, params: &[(&str, &str)]) {
                     chunk
                         .iter()
                         .map(|&seed| {
-                            let r = coordinator::actor_system(true)
-                                .block_on(coordinator::run(
-                                    plan(world, seed, duration_s, params),
-                                    &Registry::builtin(),
-                                ))
-                                .expect("experiment runs");
+                            let r = coordinator::run_blocking(
+                                plan(world, seed, duration_s, params),
+                                &Registry::builtin(),
+                            )
+                            .expect("experiment runs");
                             (seed, r)
                         })
                         .collect::<Vec<_>>()

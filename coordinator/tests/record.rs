@@ -17,28 +17,16 @@ fn temp(name: &str) -> PathBuf {
 }
 
 fn plan(behaviour: &str, transport: Transport) -> Plan {
-    Plan {
-        behaviour: behaviour.into(),
-        world: None,
-        robots: None,
-        transport,
-        seed: 1,
-        realtime: false,
-        duration: Duration::from_secs(150),
-        params: Default::default(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
-    }
+    Plan::sim(behaviour)
+        .transport(transport)
+        .duration(Duration::from_secs(150))
 }
 
 /// Runs on its own thread so each run has its own actix system.
 fn run(plan: Plan, instruments: Instruments) -> coordinator::Run {
     std::thread::spawn(move || {
         let registry = Registry::builtin();
-        coordinator::actor_system(true)
-            .block_on(coordinator::run_with(plan, &registry, instruments))
-            .expect("the run completes")
+        coordinator::run_blocking_with(plan, &registry, instruments).expect("the run completes")
     })
     .join()
     .expect("run thread")

@@ -1,41 +1,28 @@
 //! `traffic_control` from the starts a user's world file allows and with its defaults, run
 //! through the coordinator on simulated robots and judged from the simulator's ground truth.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
 use behaviours::Registry;
-use coordinator::{Plan, Report, Transport};
+use coordinator::{Plan, Report};
 
 /// Two lanes joined by single-lane rungs, every robot placed on a node.
 const LADDER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/ladder.toml");
 
 fn run(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Report {
-    coordinator::actor_system(true)
-        .block_on(coordinator::run(
-            plan_for(world, seed, duration_s, params),
-            &Registry::builtin(),
-        ))
-        .expect("experiment runs")
+    coordinator::run_blocking(
+        plan_for(world, seed, duration_s, params),
+        &Registry::builtin(),
+    )
+    .expect("experiment runs")
 }
 
 fn plan_for(world: &str, seed: u64, duration_s: u64, params: &[(&str, &str)]) -> Plan {
-    Plan {
-        behaviour: "traffic_control".into(),
-        world: Some(world.into()),
-        robots: None,
-        transport: Transport::Sim,
-        seed,
-        realtime: false,
-        duration: Duration::from_secs(duration_s),
-        params: params
-            .iter()
-            .map(|(k, v)| (k.to_string(), v.to_string()))
-            .collect::<BTreeMap<_, _>>(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
-    }
+    Plan::sim("traffic_control")
+        .world(world)
+        .seed(seed)
+        .duration(Duration::from_secs(duration_s))
+        .params(params.iter().copied())
 }
 
 fn metric(r: &Report, name: &str) -> Option<f64> {
@@ -108,8 +95,7 @@ fn a_robot_placed_off_the_tape_is_refused_naming_it_and_the_distance() {
 /// the team finishes its tasks without contact and the model is back within millimetres.
 #[test]
 fn a_robot_kicked_sideways_is_found_lost_stopped_and_relocalised_without_contact() {
-    let mut plan = plan_for("grid", 1, 600, &[]);
-    plan.kicks.push(coordinator::Kick {
+    let plan = plan_for("grid", 1, 600, &[]).kick(coordinator::Kick {
         robot: 1,
         at: Duration::from_secs(12),
         dx_m: 0.0,
@@ -117,9 +103,7 @@ fn a_robot_kicked_sideways_is_found_lost_stopped_and_relocalised_without_contact
         dtheta_rad: 0.0,
         sideways_m: 0.03,
     });
-    let r = coordinator::actor_system(true)
-        .block_on(coordinator::run(plan, &Registry::builtin()))
-        .expect("experiment runs");
+    let r = coordinator::run_blocking(plan, &Registry::builtin()).expect("experiment runs");
     assert!(r.success(), "{r}");
     assert_eq!(r.robot_collisions(), Some(0), "{r}");
     assert_eq!(r.wall_contacts(), Some(0), "{r}");

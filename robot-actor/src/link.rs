@@ -2,8 +2,8 @@
 //!
 //! A [`Connector`] knows how to reach one robot and opens a [`Link`]: a pair of channels fed by an
 //! I/O task the binding spawns (SLIP over a byte stream, L2CAP sequenced packets, the in-process
-//! simulator). The robot actor sees only packets, so every transport looks the same to it, and a
-//! reconnect is just another `connect()`.
+//! simulator with feature `sim`). The robot actor sees only packets, so every transport looks the
+//! same to it, and a reconnect is just another `connect()`.
 
 use std::fmt;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -15,8 +15,11 @@ use tokio::sync::mpsc;
 #[cfg(feature = "bluetooth")]
 pub mod bluetooth;
 pub mod seqpacket;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod stream;
+#[cfg(feature = "zenoh")]
+pub mod zenoh;
 
 /// Packets queued towards one robot before `send` waits.
 pub const SEND_QUEUE: usize = 256;

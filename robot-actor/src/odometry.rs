@@ -6,16 +6,9 @@
 
 use std::f64::consts::TAU;
 
-/// Position and heading in the plane.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Pose {
-    /// x, metres.
-    pub x: f64,
-    /// y, metres.
-    pub y: f64,
-    /// Heading, radians CCW from +x (unwrapped: counts whole turns).
-    pub theta: f64,
-}
+/// Position and heading in the plane: the world crate's, so odometry, the world model and the
+/// simulator's ground truth are one type.
+pub use world::Pose;
 
 /// Wheel geometry the formula needs.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -72,7 +72,7 @@ impl Robot {
     /// Queues a move now and returns a future of its end: moves queued back to back keep their
     /// order whether or not their futures are awaited in between.
     pub fn queue(&self, m: MoveCommand) -> BoxFuture<'static, Result<MoveOutcome, CallError>> {
-        let sent = self.addr.send(Enqueue(m));
+        let sent = self.addr.send(Enqueue::new(m));
         async move { Ok(sent.await??) }.boxed()
     }
 

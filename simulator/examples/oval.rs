@@ -71,10 +71,8 @@ fn main() {
                 }
                 let p = sim.robots()[i].pose();
                 let a = angle(p.x, p.y);
-                let mut d = a - turned[i].rem_euclid(std::f64::consts::TAU);
-                d = (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                    - std::f64::consts::PI;
-                turned[i] += d;
+                turned[i] +=
+                    simulator::world::wrap_angle(a - turned[i].rem_euclid(std::f64::consts::TAU));
             }
         }
         if sim.now().as_millis() % 2000 == 0 {

@@ -88,6 +88,7 @@ pub const MAX_KICK_M: f64 = 10.0;
 
 /// Logs to stderr at `warn` unless `RUST_LOG` says otherwise, coloured only on a terminal (a log
 /// file or a test's captured output gets no escape codes).
+#[cfg(feature = "cli")]
 pub fn init_logging() {
     tracing_subscriber::fmt()
         .with_env_filter(

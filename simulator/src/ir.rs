@@ -288,7 +288,11 @@ mod tests {
     use super::*;
 
     fn robot(x: f64, y: f64, deg: f64) -> Obb {
-        Obb::new([x, y], [0.024, 0.016], deg.to_radians())
+        Obb::new(
+            [x, y],
+            [world::robot::LENGTH_M / 2.0, world::robot::WIDTH_M / 2.0],
+            deg.to_radians(),
+        )
     }
 
     fn run(robots: &[Obb], obstacles: &[Obb], beam: Beam) -> Arrivals {

@@ -180,7 +180,7 @@ impl PacketQueue {
 
 /// One robot's link: two ordered queues of packets with delivery times.
 #[derive(Clone, Debug)]
-pub struct Link {
+pub struct SimLink {
     to_robot: PacketQueue,
     to_host: PacketQueue,
     up: bool,
@@ -188,7 +188,7 @@ pub struct Link {
     rng: ChaCha8Rng,
 }
 
-impl Link {
+impl SimLink {
     /// An up link with its own random stream, buffering [`LINK_BUFFER_BYTES`] per direction.
     pub fn new(rng: ChaCha8Rng) -> Self {
         Self::with_buffer(rng, LINK_BUFFER_BYTES)
@@ -365,8 +365,8 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
-    fn link() -> Link {
-        Link::new(ChaCha8Rng::seed_from_u64(7))
+    fn link() -> SimLink {
+        SimLink::new(ChaCha8Rng::seed_from_u64(7))
     }
 
     #[test]
@@ -397,8 +397,8 @@ mod tests {
         };
         let mut air = Piconet::default();
         // Buffers big enough for the burst: this is about air time, not overflow.
-        let mut links: Vec<Link> = (0..7)
-            .map(|_| Link::with_buffer(ChaCha8Rng::seed_from_u64(7), 1 << 20))
+        let mut links: Vec<SimLink> = (0..7)
+            .map(|_| SimLink::with_buffer(ChaCha8Rng::seed_from_u64(7), 1 << 20))
             .collect();
         // 7 robots each send 100 full-state packets at once: 7·100·(110 + 10 overhead)·8 bits at
         // 700 kbit/s take 0.96 s of air time.

@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use crate::board::{FloorView, SimBoard};
 use crate::drive::{grip_impulse, inverse_mass_along, WheelState};
 use crate::ir::{self, Beam, Grid, Obb, Scene};
-use crate::link::{Link, LinkModel, LinkStats, Piconet};
+use crate::link::{LinkModel, LinkStats, Piconet, SimLink};
 use crate::spec::RobotSpec;
 use crate::world::World;
 
@@ -59,16 +59,9 @@ impl Default for SimConfig {
     }
 }
 
-/// True pose of a robot or box.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Pose {
-    /// x, metres.
-    pub x: f64,
-    /// y, metres.
-    pub y: f64,
-    /// Heading, radians, unwrapped (counts whole turns).
-    pub theta: f64,
-}
+/// True pose of a robot or box: the host's pose type, so ground truth and estimates compare
+/// directly.
+pub use world::Pose;
 
 /// Which pair of things touched.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -135,7 +128,7 @@ pub struct SimRobot {
     temperature_c: f64,
     current_a: f64,
     last_velocity: Vector2<f64>,
-    link: Link,
+    link: SimLink,
     connected: bool,
     distance_m: f64,
     pose: Pose,
@@ -340,7 +333,7 @@ impl Simulation {
                 temperature_c: 25.0,
                 current_a: spec.battery.idle_a,
                 last_velocity: Vector2::zeros(),
-                link: Link::new(ChaCha8Rng::seed_from_u64(stream ^ 0x5EED)),
+                link: SimLink::new(ChaCha8Rng::seed_from_u64(stream ^ 0x5EED)),
                 connected: false,
                 distance_m: 0.0,
                 pose: Pose {
@@ -771,9 +764,8 @@ impl Simulation {
             let x = f64::from(b.translation().x);
             let y = f64::from(b.translation().y);
             let theta_wrapped = f64::from(b.rotation().angle());
-            let mut dtheta = theta_wrapped - r.pose.theta.rem_euclid(std::f64::consts::TAU);
-            dtheta = (dtheta + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI;
+            let dtheta =
+                world::wrap_angle(theta_wrapped - r.pose.theta.rem_euclid(std::f64::consts::TAU));
             r.distance_m += (x - r.pose.x).hypot(y - r.pose.y);
             r.pose = Pose {
                 x,

@@ -1,5 +1,9 @@
 //! Every physical number of the simulated PocketBot2 in one place, with the thesis's values where it
-//! gives them (ch. 8: 48 × 32 mm, ~20 g, 9 mm wheels, 40-pulse encoders, 32 MHz timer).
+//! gives them (ch. 8: 48 × 32 mm, ~20 g, 9 mm wheels, 40-pulse encoders, 32 MHz timer). The
+//! geometry the host also needs (body, wheels, line sensor, IR layout) comes from
+//! [`world::robot`], so the world model and the safety check see the body the physics simulates.
+
+use world::robot;
 
 /// Geometry, mass, drive train, sensors and battery of one PocketBot2.
 #[derive(Clone, Debug, PartialEq)]
@@ -79,24 +83,24 @@ pub struct BatterySpec {
 impl Default for RobotSpec {
     fn default() -> Self {
         Self {
-            length_m: 0.048,
-            width_m: 0.032,
+            length_m: robot::LENGTH_M,
+            width_m: robot::WIDTH_M,
             mass_kg: 0.020,
-            wheel_diameter_m: 0.009,
-            wheel_gauge_m: 0.026,
+            wheel_diameter_m: robot::WHEEL_DIAMETER_M,
+            wheel_gauge_m: robot::WHEEL_GAUGE_M,
             axle_offset_m: 0.0,
             tyre_friction: 0.8,
             motor: MotorSpec::default(),
             encoder_edges_per_rev: 40,
             encoder_black_fraction: 0.4,
             capture_hz: 32e6,
-            line_sensor_ahead_m: 0.016,
-            spot_pitch_m: 0.003,
+            line_sensor_ahead_m: robot::LINE_SENSOR_AHEAD_M,
+            spot_pitch_m: robot::LINE_SPOT_PITCH_M,
             line_gain: 3000.0,
             ambient_gain: 2000.0,
-            ir_led_angle_deg: [30.0, 0.0, -30.0, 150.0, 180.0, -150.0],
-            ir_cone_half_deg: 15.0,
-            ir_range_m: [0.030, 0.060, 0.100, 0.150],
+            ir_led_angle_deg: robot::IR_LED_ANGLE_DEG,
+            ir_cone_half_deg: robot::IR_CONE_HALF_DEG,
+            ir_range_m: robot::IR_RANGE_M,
             battery: BatterySpec::default(),
         }
     }
@@ -155,6 +159,20 @@ mod tests {
         let per_cm = 0.01 / s.edge_pitch_m();
         assert!((per_cm - 14.1).abs() < 0.2, "{per_cm}");
         assert_eq!((s.length_m, s.width_m, s.mass_kg), (0.048, 0.032, 0.020));
+    }
+
+    #[test]
+    fn the_firmwares_default_settings_describe_the_simulated_robot() {
+        let s = RobotSpec::default();
+        let settings = protocol::Settings::default();
+        let g = settings.geometry;
+        // Copied out: the settings are packed, so their fields cannot be borrowed.
+        let (diameter, gauge, ticks) = (g.wheel_diameter_m, g.wheel_gauge_m, g.ticks_per_rev);
+        assert_eq!(diameter, s.wheel_diameter_m as f32);
+        assert_eq!(gauge, s.wheel_gauge_m as f32);
+        assert_eq!(u32::from(ticks), s.encoder_edges_per_rev);
+        let pitch_um = settings.line_sensor.spot_pitch_um;
+        assert!((f64::from(pitch_um) * 1e-6 - s.spot_pitch_m).abs() < 1e-12);
     }
 
     #[test]

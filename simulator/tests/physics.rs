@@ -61,9 +61,7 @@ fn square_walk_closes_in_physics() {
 }
 
 fn unwrap_angle(prev: f64, now: f64) -> f64 {
-    let mut d = now - prev.rem_euclid(std::f64::consts::TAU);
-    d = (d + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
-    prev + d
+    prev + simulator::world::wrap_angle(now - prev.rem_euclid(std::f64::consts::TAU))
 }
 
 #[test]
@@ -98,8 +96,9 @@ fn line_following_laps_the_oval_three_times() {
         for (i, t) in turned.iter_mut().enumerate() {
             let p = sim.robots()[i].pose();
             *t = unwrap_angle(*t, angle(p));
+            let ahead = simulator::world::robot::LINE_SENSOR_AHEAD_M;
             let sensor =
-                nalgebra::Point2::new(p.x + 0.016 * p.theta.cos(), p.y + 0.016 * p.theta.sin());
+                nalgebra::Point2::new(p.x + ahead * p.theta.cos(), p.y + ahead * p.theta.sin());
             let d = sim
                 .world()
                 .track

@@ -180,7 +180,7 @@ pub fn image_size(elf: &[u8], ram_start: u32, ram_len: u32) -> Result<ImageSize,
 pub struct QemuRobot {
     child: Child,
     /// The host end of USART1.
-    pub link: Link,
+    pub link: UartLink,
 }
 
 impl QemuRobot {
@@ -235,7 +235,7 @@ impl QemuRobot {
             .map_err(|e| format!("nodelay: {e}"))?;
         Ok(Self {
             child,
-            link: Link::new(stream),
+            link: UartLink::new(stream),
         })
     }
 
@@ -253,8 +253,8 @@ impl Drop for QemuRobot {
     }
 }
 
-/// The host end of a SLIP stream: typed packets out, decoded packets in.
-pub struct Link {
+/// The host end of the robot's USART1, a SLIP stream: typed packets out, decoded packets in.
+pub struct UartLink {
     stream: TcpStream,
     decoder: SlipDecoder,
     received: VecDeque<AnyPacket>,
@@ -262,7 +262,7 @@ pub struct Link {
     pub bad_frames: u32,
 }
 
-impl Link {
+impl UartLink {
     fn new(stream: TcpStream) -> Self {
         Self {
             stream,
@@ -360,7 +360,7 @@ impl Link {
     }
 }
 
-/// Lets a [`Link::wait_for`] callback answer packets as they arrive.
+/// Lets a [`UartLink::wait_for`] callback answer packets as they arrive.
 pub struct Sender<'a> {
     stream: &'a mut TcpStream,
     error: Option<String>,

@@ -8,7 +8,7 @@
 use std::time::{Duration, Instant};
 
 use pocketfleet_tests::{
-    build_firmware, image_size, skip_without_qemu, ImageSize, Link, QemuRobot,
+    build_firmware, image_size, skip_without_qemu, ImageSize, QemuRobot, UartLink,
 };
 use protocol::packets::{
     self, AnyPacket, MoveOutcome, ReflectorMode, SettingsRead, SettingsUpdate, StraightMovement,
@@ -57,7 +57,7 @@ fn settings_field(path: &str) -> (u16, usize) {
 }
 
 /// Writes a settings field and checks the robot's read-back.
-fn write_setting(link: &mut Link, path: &str, value: &[u8]) {
+fn write_setting(link: &mut UartLink, path: &str, value: &[u8]) {
     let (offset, len) = settings_field(path);
     assert_eq!(len, value.len(), "{path} is {len} bytes");
     link.send(SettingsUpdate::new(offset, value).unwrap())

@@ -56,7 +56,7 @@ use serde::Deserialize;
 use toml::Spanned;
 
 use super::track::{EdgeSpec, Mark, Node, Track, DEFAULT_TAPE_WIDTH_M};
-use super::{Arena, Light, Link, Obstacle, Place, Problem, RobotStart, World};
+use super::{Arena, Light, Obstacle, Place, Problem, RadioModel, RobotStart, World};
 
 /// Default floor friction coefficient of an obstacle.
 pub const DEFAULT_OBSTACLE_FRICTION: f64 = 0.5;
@@ -387,9 +387,9 @@ impl WorldFile {
                 }
             })
             .collect();
-        let d = Link::default();
+        let d = RadioModel::default();
         let l = &self.link;
-        let link = Link {
+        let link = RadioModel {
             latency_ms: value(&l.latency_ms, d.latency_ms),
             jitter_ms: value(&l.jitter_ms, d.jitter_ms),
             loss: value(&l.loss, d.loss),
@@ -536,7 +536,7 @@ y = 0.5
         assert_eq!(w.track.floor_at(Point2::new(0.5, 0.5)), Surface::RED);
         assert_eq!(w.robots[0].id, 3);
         assert_eq!(w.robots[0].heading_rad, 0.0);
-        assert_eq!(w.link, Link::default());
+        assert_eq!(w.link, RadioModel::default());
         assert_eq!(w.light, Light::default());
         assert_eq!(w.seed, None);
     }

@@ -1,5 +1,7 @@
 //! The world a simulation runs in: walled arena, tape track, movable obstacles, robot start poses,
 //! radio link and light, read from TOML world files ([`file`](mod@file)) or built-in presets ([`presets`]).
+//! Also what every host crate must agree on about the robot: its geometry ([`robot`]), [`Pose`]
+//! and [`wrap_angle`].
 //!
 //! Coordinates are metres on the floor, x to the right and y up (seen from above), headings in
 //! radians counter-clockwise from +x.
@@ -8,7 +10,9 @@
 
 pub mod file;
 pub mod graph;
+pub mod pose;
 pub mod presets;
+pub mod robot;
 pub mod track;
 
 use std::collections::HashSet;
@@ -16,19 +20,15 @@ use std::fmt;
 
 use nalgebra::{Point2, Rotation2, Vector2};
 
+use robot::{RADIUS_M as ROBOT_RADIUS_M, WIDTH_M as ROBOT_WIDTH_M};
+
 pub use file::{load, parse, WorldError, WorldFile};
 pub use graph::{GraphEdge, GraphNode, NodeKind, Route, TrackGraph};
+pub use pose::{wrap_angle, Pose};
 pub use presets::{grid, preset, preset_names};
 pub use track::{
     Edge, EdgeEnd, EdgeSpec, Mark, Node, QueryCost, Surface, Track, TrackError, TrackPoint,
 };
-
-/// Length of a PocketBot2 body along its heading, in metres.
-pub const ROBOT_LENGTH_M: f64 = 0.048;
-/// Width of a PocketBot2 body across its heading, in metres.
-pub const ROBOT_WIDTH_M: f64 = 0.032;
-/// Radius of the circle around a robot's body: the body fits inside it at any heading.
-pub const ROBOT_RADIUS_M: f64 = 0.028_844_410_203_711_914; // hypot(0.024, 0.016)
 
 /// The walled floor: walls stand along the border of the rectangle 0 ≤ x ≤ `width_m`,
 /// 0 ≤ y ≤ `height_m`.
@@ -105,7 +105,7 @@ pub struct RobotStart {
 
 /// Radio link model between the host and the robots.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Link {
+pub struct RadioModel {
     /// One-way latency in milliseconds.
     pub latency_ms: f64,
     /// Standard deviation of the latency in milliseconds.
@@ -118,9 +118,9 @@ pub struct Link {
     pub robots_per_piconet: u32,
 }
 
-impl Default for Link {
+impl Default for RadioModel {
     fn default() -> Self {
-        Link {
+        RadioModel {
             latency_ms: 10.0,
             jitter_ms: 2.0,
             loss: 0.0,
@@ -166,7 +166,7 @@ pub struct World {
     /// Robot start poses.
     pub robots: Vec<RobotStart>,
     /// Radio link model.
-    pub link: Link,
+    pub link: RadioModel,
     /// Ambient light and sensor noise.
     pub light: Light,
     /// Seed for every random choice of a run; `None` lets the simulator pick one.
@@ -539,11 +539,6 @@ impl World {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn robot_radius_matches_body() {
-        assert!((ROBOT_RADIUS_M - (ROBOT_LENGTH_M / 2.0).hypot(ROBOT_WIDTH_M / 2.0)).abs() < 1e-15);
-    }
 
     #[test]
     fn obstacle_corners_and_containment_follow_heading() {

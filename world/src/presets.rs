@@ -5,7 +5,7 @@ use nalgebra::Point2;
 
 use super::file::parse;
 use super::track::{EdgeSpec, Node, Track};
-use super::{Arena, Light, Link, RobotStart, World};
+use super::{Arena, Light, RadioModel, RobotStart, World};
 
 /// Distance between neighbouring grid nodes, in metres.
 pub const GRID_SPACING_M: f64 = 0.2;
@@ -158,7 +158,7 @@ pub fn grid(cols: usize, rows: usize, robots: usize) -> World {
         track,
         obstacles: Vec::new(),
         robots,
-        link: Link::default(),
+        link: RadioModel::default(),
         light: Light::default(),
         seed: Some(1),
     }
@@ -172,7 +172,7 @@ mod tests {
     use super::*;
     use crate::graph::{NodeKind, TrackGraph};
     use crate::track::Surface;
-    use crate::{GRAVITY_MPS2, ROBOT_RADIUS_M};
+    use crate::{robot, GRAVITY_MPS2};
 
     fn load(name: &str) -> World {
         let text = preset_text(name).expect("known preset");
@@ -200,7 +200,7 @@ mod tests {
                 r.id
             );
             assert!(
-                w.arena.contains(r.position, ROBOT_RADIUS_M),
+                w.arena.contains(r.position, robot::RADIUS_M),
                 "{}: robot {}",
                 w.name,
                 r.id

@@ -1,7 +1,7 @@
 //! Action dependency graph (Hönig, Kiesel, Tinka, Durham, Ayanian, "Persistent and Robust
 //! Execution of MAPF Schedules in Warehouses", IEEE RA-L 2019).
 //!
-//! A [`Plan`] is timestep-synchronous, but real robots drive at different and varying speeds.
+//! A [`Solution`] is timestep-synchronous, but real robots drive at different and varying speeds.
 //! The ADG keeps only what makes the plan safe: the order in which agents pass through each
 //! vertex. Each agent's plan becomes a list of moves (waits are dropped), and a move of agent `b`
 //! into vertex `v` depends on the move by which the agent that was on `v` before `b` in the plan
@@ -13,7 +13,7 @@
 
 use thiserror::Error;
 
-use crate::plan::Plan;
+use crate::plan::Solution;
 
 /// One move of one agent.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -87,7 +87,7 @@ struct Visit {
 
 impl Adg {
     /// Builds the ADG of `plan`; the plan should have passed [`crate::validate`].
-    pub fn new(plan: &Plan) -> Result<Self, AdgError> {
+    pub fn new(plan: &Solution) -> Result<Self, AdgError> {
         let len = plan.paths.first().map_or(0, Vec::len);
         if plan.paths.iter().any(|p| p.len() != len) || (len == 0 && !plan.paths.is_empty()) {
             return Err(AdgError::RaggedPlan);
@@ -251,7 +251,7 @@ mod tests {
     #[test]
     fn waits_are_collapsed_and_followers_wait_for_the_leader() {
         // Agent 0 goes 1 -> 2 after waiting; agent 1 follows into 1 right behind it.
-        let plan = Plan {
+        let plan = Solution {
             paths: vec![vec![1, 1, 2], vec![0, 0, 1]],
         };
         let mut adg = Adg::new(&plan).unwrap();
@@ -281,7 +281,7 @@ mod tests {
 
     #[test]
     fn rotation_is_rejected_as_cyclic() {
-        let plan = Plan {
+        let plan = Solution {
             paths: vec![vec![0, 1], vec![1, 2], vec![2, 0]],
         };
         assert_eq!(Adg::new(&plan).unwrap_err(), AdgError::Cyclic);
@@ -289,20 +289,20 @@ mod tests {
 
     #[test]
     fn empty_or_ragged_paths_are_rejected() {
-        let empty = Plan {
+        let empty = Solution {
             paths: vec![vec![]],
         };
         assert_eq!(Adg::new(&empty).unwrap_err(), AdgError::RaggedPlan);
-        let ragged = Plan {
+        let ragged = Solution {
             paths: vec![vec![0, 1], vec![2]],
         };
         assert_eq!(Adg::new(&ragged).unwrap_err(), AdgError::RaggedPlan);
-        assert!(Adg::new(&Plan::default()).unwrap().is_done());
+        assert!(Adg::new(&Solution::default()).unwrap().is_done());
     }
 
     #[test]
     fn overlapping_plan_is_rejected() {
-        let plan = Plan {
+        let plan = Solution {
             paths: vec![vec![0, 1], vec![1, 1]],
         };
         assert!(matches!(Adg::new(&plan), Err(AdgError::Overlap { .. })));

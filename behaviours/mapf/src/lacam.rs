@@ -34,7 +34,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::error::MapfError;
 use crate::graph::Graph;
 use crate::pibt::{check_vertices, initial_priorities, update_priorities, Pibt, NONE};
-use crate::plan::Plan;
+use crate::plan::Solution;
 
 /// Search settings. The default has seed 0 and no budget.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -66,7 +66,7 @@ pub fn solve(
     starts: &[u32],
     goals: &[u32],
     options: &Options,
-) -> Result<Plan, MapfError> {
+) -> Result<Solution, MapfError> {
     solve_with_stats(graph, starts, goals, options).0
 }
 
@@ -76,7 +76,7 @@ pub fn solve_with_stats(
     starts: &[u32],
     goals: &[u32],
     options: &Options,
-) -> (Result<Plan, MapfError>, SearchStats) {
+) -> (Result<Solution, MapfError>, SearchStats) {
     let began = Instant::now();
     let mut stats = SearchStats::default();
     let result =
@@ -196,7 +196,7 @@ impl<'g, 'a> Search<'g, 'a> {
         })
     }
 
-    fn run(mut self, stats: &mut SearchStats) -> Result<Plan, MapfError> {
+    fn run(mut self, stats: &mut SearchStats) -> Result<Solution, MapfError> {
         let n = self.goals.len();
         if *self.nodes[0].config == *self.goals {
             return Ok(self.plan_to(0));
@@ -292,7 +292,7 @@ impl<'g, 'a> Search<'g, 'a> {
         Ok(())
     }
 
-    fn plan_to(&self, mut id: u32) -> Plan {
+    fn plan_to(&self, mut id: u32) -> Solution {
         let mut configs = Vec::new();
         while id != NONE {
             let node = &self.nodes[id as usize];
@@ -300,7 +300,7 @@ impl<'g, 'a> Search<'g, 'a> {
             id = node.parent;
         }
         configs.reverse();
-        Plan::from_configurations(&configs)
+        Solution::from_configurations(&configs)
     }
 }
 

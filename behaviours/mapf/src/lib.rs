@@ -17,7 +17,7 @@
 //!   under gradually added constraints. It is complete: it finds a plan whenever one exists and
 //!   otherwise reports [`MapfError::Unsolvable`] after exhausting the reachable configurations,
 //!   unless the caller's budget ends it first with [`MapfError::Timeout`].
-//! - [`Plan`] and [`validate`]: the synchronous plan (`paths[agent][step]`, all of one length,
+//! - [`Solution`] and [`validate`]: the synchronous plan (`paths[agent][step]`, all of one length,
 //!   agents that arrive early wait and may be pushed aside later) and its checker.
 //! - [`Adg`]: the *action dependency graph* of Hönig et al. ("Persistent and Robust Execution of
 //!   MAPF Schedules in Warehouses", RA-L 2019), which lets each robot start its next move as
@@ -62,5 +62,5 @@ pub use adg::{Action, Adg, AdgError};
 pub use error::MapfError;
 pub use graph::{DistanceTable, Graph, GraphError};
 pub use pibt::Pibt;
-pub use plan::{validate, Conflict, Plan};
+pub use plan::{validate, Conflict, Solution};
 pub use scenario::Scenario;

@@ -361,7 +361,7 @@ pub fn update_priorities(priorities: &mut [f32], current: &[u32], goals: &[u32])
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plan::{validate, Plan};
+    use crate::plan::{validate, Solution};
 
     #[test]
     fn agents_walk_to_their_goals_on_a_grid() {
@@ -380,7 +380,7 @@ mod tests {
             update_priorities(&mut priorities, &config, &goals);
             configs.push(config.clone());
         }
-        let plan = Plan::from_configurations(&configs);
+        let plan = Solution::from_configurations(&configs);
         assert_eq!(validate(&g, &plan, &starts, &goals), Ok(()));
     }
 

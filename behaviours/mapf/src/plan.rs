@@ -7,12 +7,12 @@ use crate::graph::Graph;
 /// A timestep-synchronous joint plan: `paths[i][t]` is the vertex of agent `i` at step `t`,
 /// `paths[i][0]` its start and the last entry its goal. All paths have the same length.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Plan {
+pub struct Solution {
     /// One path per agent, all of one length.
     pub paths: Vec<Vec<u32>>,
 }
 
-impl Plan {
+impl Solution {
     /// Builds a plan from the sequence of joint configurations `configs[t][i]`.
     pub fn from_configurations(configs: &[Vec<u32>]) -> Self {
         let agents = configs.first().map_or(0, Vec::len);
@@ -153,7 +153,12 @@ pub enum Conflict {
 
 /// Checks `plan` against the instance: one equal-length path per agent from its start to its
 /// goal, every step a wait or an edge of `graph`, and no vertex, swap or rotation conflicts.
-pub fn validate(graph: &Graph, plan: &Plan, starts: &[u32], goals: &[u32]) -> Result<(), Conflict> {
+pub fn validate(
+    graph: &Graph,
+    plan: &Solution,
+    starts: &[u32],
+    goals: &[u32],
+) -> Result<(), Conflict> {
     let agents = starts.len();
     if plan.paths.len() != agents || goals.len() != agents {
         return Err(Conflict::AgentCount {
@@ -245,7 +250,7 @@ pub fn validate(graph: &Graph, plan: &Plan, starts: &[u32], goals: &[u32]) -> Re
 /// "Follows" is a partial function (each agent enters at most one vertex, and at most one agent
 /// is on it), so cycles are found by walking from every agent with three-colour marking.
 fn following_cycle(
-    plan: &Plan,
+    plan: &Solution,
     time: usize,
     occupant: &[usize],
     mark: &mut [u8],
@@ -310,7 +315,7 @@ mod tests {
     #[test]
     fn accepts_a_valid_plan_with_following() {
         let g = path3();
-        let plan = Plan {
+        let plan = Solution {
             paths: vec![vec![1, 2, 2], vec![0, 1, 1]],
         };
         assert_eq!(validate(&g, &plan, &[1, 0], &[2, 1]), Ok(()));
@@ -321,7 +326,7 @@ mod tests {
     #[test]
     fn reports_each_kind_of_fault() {
         let g = path3();
-        let p = |paths: Vec<Vec<u32>>| Plan { paths };
+        let p = |paths: Vec<Vec<u32>>| Solution { paths };
         assert!(matches!(
             validate(&g, &p(vec![vec![0, 2]]), &[0], &[2]),
             Err(Conflict::NotAdjacent { .. })
@@ -359,7 +364,7 @@ mod tests {
     #[test]
     fn rejects_a_rotation() {
         let triangle = Graph::from_edges(3, [(0, 1), (1, 2), (2, 0)]).unwrap();
-        let plan = Plan {
+        let plan = Solution {
             paths: vec![vec![0, 1], vec![1, 2], vec![2, 0]],
         };
         match validate(&triangle, &plan, &[0, 1, 2], &[1, 2, 0]) {

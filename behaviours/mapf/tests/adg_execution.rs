@@ -6,7 +6,7 @@ mod common;
 use std::collections::HashMap;
 
 use mapf::lacam::{self, Options};
-use mapf::{Action, Adg, Graph, MapfError, Plan, Scenario};
+use mapf::{Action, Adg, Graph, MapfError, Scenario, Solution};
 use proptest::prelude::*;
 use rand::seq::SliceRandom;
 use rand::Rng;
@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 /// duration; a ready robot may also dawdle before starting. A moving robot holds both ends of
 /// its edge (it is somewhere between them), which makes a swap show up as two robots holding
 /// one vertex. Returns the finishing time, or what went wrong.
-fn execute(plan: &Plan, rng: &mut ChaCha8Rng) -> Result<u64, String> {
+fn execute(plan: &Solution, rng: &mut ChaCha8Rng) -> Result<u64, String> {
     let mut adg = Adg::new(plan).map_err(|e| e.to_string())?;
     let n = adg.num_agents();
     let slowness: Vec<u64> = (0..n).map(|_| rng.gen_range(1..=10)).collect();
@@ -95,7 +95,7 @@ fn corridor_swap_survives_very_uneven_speeds() {
 #[test]
 fn the_checker_catches_an_unsafe_execution() {
     // A follower that ignores the ADG: robot 1 enters vertex 1 while robot 0 is still leaving.
-    let plan = Plan {
+    let plan = Solution {
         paths: vec![vec![1, 2], vec![0, 1]],
     };
     let adg = Adg::new(&plan).unwrap();

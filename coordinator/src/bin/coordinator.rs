@@ -1,7 +1,6 @@
 //! `coordinator --behaviour NAME`: one supervised multi-robot experiment, on simulated robots by
 //! default, ending with a report; the exit status says whether the behaviour succeeded.
 
-use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -25,9 +24,23 @@ struct Args {
     /// The behaviour to run (see --list-behaviours).
     #[arg(long, required_unless_present_any = ["list_behaviours", "list_worlds"])]
     behaviour: Option<String>,
-    /// Number of simulated robots, or a comma-separated list of robot addresses.
+    /// Number of simulated robots, a comma-separated list of robot addresses, or with
+    /// --transport zenoh the number of robots to wait for.
     #[arg(long)]
     robots: Option<String>,
+    /// With --transport zenoh: the fleet's name, as its gateways were given it.
+    #[arg(long)]
+    fleet: Option<String>,
+    /// With --transport zenoh: an endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable).
+    #[arg(long = "zenoh-listen", value_name = "ENDPOINT")]
+    zenoh_listen: Vec<String>,
+    /// With --transport zenoh: a gateway's or peer's endpoint to connect to (repeatable).
+    #[arg(long = "zenoh-connect", value_name = "ENDPOINT")]
+    zenoh_connect: Vec<String>,
+    /// With --transport zenoh: a zenoh JSON5 configuration file (TLS, authentication), applied
+    /// first.
+    #[arg(long = "zenoh-config", value_name = "FILE")]
+    zenoh_config: Option<PathBuf>,
     /// A world preset, a world file, or a generated lattice `grid:COLSxROWS:ROBOTS` (default: the
     /// behaviour's own).
     #[arg(long)]
@@ -117,9 +130,27 @@ enum TransportKind {
     Tcp,
     /// Robots on serial ports.
     Serial,
-    /// Robots over Bluetooth L2CAP (build with --features bluetooth).
+    /// Robots over Bluetooth L2CAP.
+    #[value(help = BLUETOOTH_HELP)]
     Bluetooth,
+    /// Robots behind pocketfleet-gateways on other hosts.
+    #[value(help = ZENOH_HELP)]
+    Zenoh,
 }
+
+/// `--transport zenoh`'s help, true to how this binary was built.
+const ZENOH_HELP: &str = if cfg!(feature = "zenoh") {
+    "Robots behind pocketfleet-gateways, over zenoh (--fleet, --robots N, --zenoh-connect)"
+} else {
+    "Robots behind pocketfleet-gateways: not in this binary; build it with --features zenoh"
+};
+
+/// `--transport bluetooth`'s help, true to how this binary was built.
+const BLUETOOTH_HELP: &str = if cfg!(feature = "bluetooth") {
+    "Robots over Bluetooth L2CAP, addressed bt://MAC (built into this binary)"
+} else {
+    "Robots over Bluetooth L2CAP: not in this binary; build it with --features bluetooth"
+};
 
 fn parse_param(s: &str) -> Result<(String, String), String> {
     s.split_once('=')
@@ -170,6 +201,43 @@ impl Outputs {
     }
 }
 
+#[cfg(feature = "zenoh")]
+fn zenoh_transport(args: &Args) -> Result<Transport> {
+    let fleet = args
+        .fleet
+        .clone()
+        .context("--transport zenoh needs --fleet NAME")?;
+    let robots = match &args.robots {
+        None => 1,
+        Some(s) => s.parse::<usize>().with_context(|| {
+            format!("--robots {s:?}: with --transport zenoh give the number of robots to wait for")
+        })?,
+    };
+    Ok(Transport::Zenoh {
+        fleet,
+        robots,
+        options: robot_actor::link::zenoh::ZenohOptions {
+            listen: args.zenoh_listen.clone(),
+            connect: args.zenoh_connect.clone(),
+            config_file: args.zenoh_config.clone(),
+        },
+    })
+}
+
+#[cfg(not(feature = "zenoh"))]
+fn zenoh_transport(args: &Args) -> Result<Transport> {
+    // Parsed in every build, so that --help lists them and a script reads the same everywhere.
+    let _ = (
+        &args.fleet,
+        &args.zenoh_listen,
+        &args.zenoh_connect,
+        &args.zenoh_config,
+    );
+    anyhow::bail!(
+        "--transport zenoh: this coordinator was built without it; build it with --features zenoh"
+    )
+}
+
 fn plan(args: &Args) -> Result<Plan> {
     let behaviour = args.behaviour.clone().context("--behaviour is required")?;
     let (transport, robots) = match args.transport {
@@ -182,6 +250,7 @@ fn plan(args: &Args) -> Result<Plan> {
             };
             (Transport::Sim, n)
         }
+        TransportKind::Zenoh => (zenoh_transport(args)?, None),
         kind => {
             let list = args
                 .robots
@@ -192,7 +261,6 @@ fn plan(args: &Args) -> Result<Plan> {
         }
     };
     Ok(Plan {
-        behaviour,
         world: args.world.clone(),
         robots,
         transport,
@@ -200,9 +268,7 @@ fn plan(args: &Args) -> Result<Plan> {
         // The panel is for watching: simulated time then runs at the wall clock's pace.
         realtime: args.realtime || (args.panel.is_some() && !args.fast),
         duration: args.duration,
-        params: args.params.iter().cloned().collect::<BTreeMap<_, _>>(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
+        params: args.params.iter().cloned().collect(),
         kicks: args
             .kick
             .iter()
@@ -215,6 +281,7 @@ fn plan(args: &Args) -> Result<Plan> {
                 sideways_m: 0.0,
             })
             .collect(),
+        ..Plan::sim(behaviour)
     })
 }
 
@@ -269,7 +336,6 @@ fn run(args: &Args, registry: &Registry) -> Result<bool> {
 }
 
 fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
-    let simulated = plan.transport == Transport::Sim;
     // Loaded again for the plot only, after the run has checked the plan.
     let plot = args.plot.as_ref().map(|path| (path.clone(), plan.clone()));
     let instruments = Instruments {
@@ -278,8 +344,7 @@ fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
         trails: args.plot.is_some(),
     };
     // Simulated experiments run on a paused clock: see `coordinator::actor_system`.
-    let system = coordinator::actor_system(simulated && !plan.realtime);
-    let run = system.block_on(coordinator::run_with(plan, registry, instruments))?;
+    let run = coordinator::run_blocking_with(plan, registry, instruments)?;
     let report = &run.report;
     println!("{report}");
     if let Some(path) = &args.json_report {
@@ -368,27 +433,22 @@ fn replay_file(
         eprintln!("coordinator: the recording ends early ({why}); replaying what is there");
     }
     let info = &recording.info;
-    let plan = Plan {
-        behaviour: info.behaviour.clone(),
-        world: Some(info.world.clone()),
-        robots: Some(info.robots),
-        transport: Transport::Replay(file.to_path_buf()),
-        seed: info.seed,
-        realtime: panel.is_some(),
-        duration: recording.end + Duration::from_secs(5),
-        params: info.params.clone(),
-        faults: Vec::new(),
-        body_faults: Vec::new(),
-        kicks: Vec::new(),
-    };
+    let plan = Plan::sim(info.behaviour.clone())
+        .world(info.world.clone())
+        .robots(info.robots)
+        .transport(Transport::Replay(file.to_path_buf()))
+        .seed(info.seed)
+        .realtime(panel.is_some())
+        .duration(recording.end + Duration::from_secs(5))
+        .params(info.params.clone());
     let plot = plot.map(|p| (p.to_path_buf(), plan.clone()));
     let instruments = Instruments {
         record: None,
         panel: panel.map(|addr| PanelOptions { addr, linger: true }),
         trails: plot.is_some(),
     };
-    let system = coordinator::actor_system(panel.is_none());
-    let run = system.block_on(coordinator::run_with(plan, registry, instruments))?;
+    // Paused unless paced for the panel.
+    let run = coordinator::run_blocking_with(plan, registry, instruments)?;
     let check = run
         .replay
         .clone()

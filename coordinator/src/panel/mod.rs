@@ -22,7 +22,7 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::serve::IncomingStream;
 use axum::Router;
-use behaviours::{Behaviour, Intent, MoveCommand, Registry, Verdict, WorldSnapshot};
+use behaviours::{Behaviour, Intent, MoveCommand, Registry, WorldSnapshot};
 use protocol::packets::ReflectorMode;
 use robot_actor::actor::{Command, ReflectorSetup, WriteSettings};
 use robot_actor::Robot;
@@ -441,6 +441,7 @@ async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
                 distance_m: num(cmd, "distance")?,
                 speed_mps: num(cmd, "speed")?,
             },
+            tag: 0,
         },
         "rotate" => Intent::Move {
             robot: id,
@@ -448,6 +449,7 @@ async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
                 angle_deg: num(cmd, "angle")?,
                 speed_mps: num(cmd, "speed")?,
             },
+            tag: 0,
         },
         "stop" => Intent::Stop { robot: id },
         "settings" => {
@@ -530,14 +532,8 @@ async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
 pub struct Teleop;
 
 impl Behaviour for Teleop {
-    fn start(&mut self, _: &WorldSnapshot) -> Vec<Intent> {
+    fn start(&mut self, _: &WorldSnapshot, _: &mut behaviours::Team) -> Vec<Intent> {
         Vec::new()
-    }
-    fn on_snapshot(&mut self, _: &WorldSnapshot) -> Vec<Intent> {
-        Vec::new()
-    }
-    fn verdict(&self) -> Option<Verdict> {
-        None
     }
 }
 

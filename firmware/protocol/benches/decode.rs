@@ -154,7 +154,7 @@ mod mirror {
     }
 
     #[derive(Serialize, Deserialize, Debug, PartialEq)]
-    pub struct Link {
+    pub struct LinkCounts {
         pub rx_packets: u32,
         pub tx_packets: u32,
         pub rx_errors: u16,
@@ -174,7 +174,7 @@ mod mirror {
         pub power: Power,
         pub locomotion: Locomotion,
         pub led: [u8; 3],
-        pub link: Link,
+        pub link: LinkCounts,
     }
 
     impl From<&RobotState> for State {
@@ -241,7 +241,7 @@ mod mirror {
                     progress_m: lo.progress_m,
                 },
                 led: s.led,
-                link: Link {
+                link: LinkCounts {
                     rx_packets: li.rx_packets,
                     tx_packets: li.tx_packets,
                     rx_errors: li.rx_errors,

@@ -1,0 +1,147 @@
+//! What a behaviour hears from a robot, typed: the robot actor's events with the wire codes
+//! turned into names ([`Side`], [`MoveOutcome`]) and the fields a behaviour needs.
+
+use protocol::packets::{MoveOutcome, NackReason, Side};
+use robot_actor::RobotEventKind;
+
+/// An IR reflection: something (a box, a wall, a robot) in front of or behind the robot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Obstacle {
+    /// Which proximity unit saw it.
+    pub side: Side,
+    /// The weakest emitter power whose reflection came back: 1 is the weakest, so the closest.
+    pub power_level: u8,
+}
+
+impl Obstacle {
+    /// Seen at the weakest power: within a few centimetres.
+    pub fn is_close(&self) -> bool {
+        self.power_level == 1
+    }
+}
+
+/// Another robot identified by its IR frames (thesis 7.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sighting {
+    /// The robot seen.
+    pub robot: u16,
+    /// Which receiver saw it.
+    pub side: Side,
+    /// Its heading relative to the observer's, degrees (counter-clockwise positive).
+    pub relative_heading_deg: i16,
+    /// Estimated range, millimetres.
+    pub range_mm: u16,
+    /// The message word it carries (0: none; see `Intent::IrMessage`).
+    pub message: u16,
+}
+
+/// One robot's event, as a behaviour hears it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Event {
+    /// The robot (re)connected and said hello; after a link loss its queue is empty.
+    Connected,
+    /// The link was lost: its queued moves are gone (the robot's watchdog stopped it).
+    LinkLost,
+    /// A move of this behaviour ended.
+    MoveFinished {
+        /// The tag the move was sent with (`Intent::Move::tag`).
+        tag: u32,
+        /// How it ended.
+        outcome: MoveOutcome,
+    },
+    /// The robot's move queue ran empty.
+    QueueEmpty,
+    /// An IR reflection.
+    Obstacle(Obstacle),
+    /// Another robot identified.
+    Sighting(Sighting),
+    /// The line sensor lost the tape while following it.
+    LineLost,
+    /// The line sensor found the tape again.
+    LineFound,
+    /// The robot's watchdog stopped it (the host fell silent).
+    WatchdogStop,
+    /// The robot's main loop overran its period this many times.
+    Overrun(u32),
+    /// The robot refused a command.
+    Refused {
+        /// The refused packet's type code.
+        packet_type: u8,
+        /// Why, when the robot gave a reason this host knows.
+        reason: Option<NackReason>,
+    },
+}
+
+impl Event {
+    /// The behaviour's view of a robot actor event.
+    pub fn from_robot(kind: &RobotEventKind) -> Self {
+        let side = |code: u8| Side::try_from(code).unwrap_or(Side::Front);
+        match kind {
+            RobotEventKind::Connected(_) => Event::Connected,
+            RobotEventKind::LinkLost => Event::LinkLost,
+            RobotEventKind::MoveFinished { tag, outcome, .. } => Event::MoveFinished {
+                tag: *tag,
+                outcome: *outcome,
+            },
+            RobotEventKind::QueueEmpty => Event::QueueEmpty,
+            RobotEventKind::Obstacle(o) => Event::Obstacle(Obstacle {
+                side: side(o.side),
+                power_level: o.power_level,
+            }),
+            RobotEventKind::Encounter(e) => Event::Sighting(Sighting {
+                robot: e.robot_id,
+                side: side(e.side),
+                relative_heading_deg: e.relative_heading_deg,
+                range_mm: e.range_mm,
+                message: e.message,
+            }),
+            RobotEventKind::Line(true) => Event::LineLost,
+            RobotEventKind::Line(false) => Event::LineFound,
+            RobotEventKind::WatchdogStop => Event::WatchdogStop,
+            RobotEventKind::Overrun(n) => Event::Overrun(*n),
+            RobotEventKind::Refused(n) => Event::Refused {
+                packet_type: n.packet_type,
+                reason: NackReason::try_from(n.reason).ok(),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::packets;
+
+    #[test]
+    fn wire_codes_become_names() {
+        let seen = RobotEventKind::Encounter(packets::RobotEncountered {
+            robot_id: 3,
+            side: 1,
+            led: 0,
+            power_level: 2,
+            relative_heading_deg: -90,
+            range_mm: 40,
+            message: 0,
+        });
+        let Event::Sighting(s) = Event::from_robot(&seen) else {
+            panic!("not a sighting");
+        };
+        assert_eq!((s.robot, s.side, s.range_mm), (3, Side::Rear, 40));
+        let front = RobotEventKind::Obstacle(packets::Obstacle {
+            side: 0,
+            power_level: 1,
+            led: 0,
+        });
+        assert_eq!(
+            Event::from_robot(&front),
+            Event::Obstacle(Obstacle {
+                side: Side::Front,
+                power_level: 1
+            })
+        );
+        assert_eq!(
+            Event::from_robot(&RobotEventKind::Line(true)),
+            Event::LineLost
+        );
+    }
+}

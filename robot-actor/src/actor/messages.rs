@@ -1,0 +1,284 @@
+//! The actor's public vocabulary: its configuration, the messages it answers, the events and
+//! state updates it publishes, and the snapshot it gives.
+
+use std::time::Duration;
+
+use actix::prelude::*;
+use protocol::packets::{self, CalibrationAction, Hello, MoveOutcome};
+use protocol::{RobotState, Settings};
+use tokio::time::Instant;
+
+use super::{LinkStats, RobotError};
+use crate::odometry::Pose;
+
+/// The state reflector's mode and period (thesis 9.7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReflectorSetup {
+    /// What to reflect.
+    pub mode: packets::ReflectorMode,
+    /// Period, milliseconds.
+    pub period_ms: u16,
+}
+
+/// Tunables of a robot actor.
+#[derive(Clone, Debug)]
+pub struct RobotConfig {
+    /// State reflector set on every connect.
+    pub reflector: ReflectorSetup,
+    /// Ping period; also keeps the robot's link watchdog fed.
+    pub ping_period: Duration,
+    /// Silence after which the link counts as lost.
+    pub link_timeout: Duration,
+    /// First reconnect delay; doubles up to `max_backoff`.
+    pub min_backoff: Duration,
+    /// Longest reconnect delay.
+    pub max_backoff: Duration,
+    /// Where odometry starts.
+    pub origin: Pose,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        Self {
+            reflector: ReflectorSetup {
+                mode: packets::ReflectorMode::Full,
+                period_ms: 50,
+            },
+            ping_period: Duration::from_millis(100),
+            link_timeout: Duration::from_millis(1000),
+            min_backoff: Duration::from_millis(100),
+            max_backoff: Duration::from_secs(2),
+            origin: Pose::default(),
+        }
+    }
+}
+
+/// A move for the robot's queue (thesis 6.5).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MoveCommand {
+    /// Straight, signed metres at `speed_mps`.
+    Straight {
+        /// Distance.
+        distance_m: f32,
+        /// Cruise speed.
+        speed_mps: f32,
+    },
+    /// Turn in place, signed degrees (CCW positive).
+    Rotate {
+        /// Angle.
+        angle_deg: f32,
+        /// Wheel speed.
+        speed_mps: f32,
+    },
+    /// Arc of `radius_m` turning `angle_deg`.
+    Arc {
+        /// Radius of the centre's path.
+        radius_m: f32,
+        /// Heading change.
+        angle_deg: f32,
+        /// Outer wheel speed.
+        speed_mps: f32,
+    },
+}
+
+/// Something the robot reported, or the link did.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RobotEventKind {
+    /// The robot introduced itself.
+    Connected(Hello),
+    /// The link was lost.
+    LinkLost,
+    /// A move ended.
+    MoveFinished {
+        /// Move id.
+        id: u16,
+        /// The tag the move was queued with ([`Enqueue::tag`]; 0 when none was given).
+        tag: u32,
+        /// How.
+        outcome: MoveOutcome,
+    },
+    /// The queue ran empty.
+    QueueEmpty,
+    /// An obstacle reflection.
+    Obstacle(packets::Obstacle),
+    /// Another robot identified.
+    Encounter(packets::RobotEncountered),
+    /// Line lost (`true`) or found.
+    Line(bool),
+    /// The robot's watchdog stopped it.
+    WatchdogStop,
+    /// The robot's main loop overran.
+    Overrun(u32),
+    /// A command was refused.
+    Refused(packets::Nack),
+}
+
+/// An event from one robot.
+#[derive(Clone, Debug, Message)]
+#[rtype(result = "()")]
+pub struct RobotEvent {
+    /// Robot id.
+    pub robot_id: u16,
+    /// When it arrived.
+    pub at: Instant,
+    /// What happened.
+    pub kind: RobotEventKind,
+}
+
+/// A new reflected state (full or reduced) and the odometry pose from it.
+#[derive(Clone, Copy, Debug, Message)]
+#[rtype(result = "()")]
+pub struct StateUpdated {
+    /// Robot id.
+    pub robot_id: u16,
+    /// When it arrived.
+    pub at: Instant,
+    /// The reflected state (fields a reduced packet does not carry keep their last value).
+    pub state: RobotState,
+    /// Whether this update came from a reduced packet.
+    pub reduced: bool,
+    /// Odometry pose.
+    pub pose: Pose,
+}
+
+/// Everything the actor knows about its robot.
+#[derive(Clone, Debug)]
+pub struct RobotSnapshot {
+    /// Robot id (0 before the first hello).
+    pub robot_id: u16,
+    /// The link's peer.
+    pub peer: String,
+    /// Whether a link is up and the hello arrived.
+    pub connected: bool,
+    /// The hello.
+    pub hello: Option<Hello>,
+    /// Reflected state.
+    pub state: RobotState,
+    /// When the last full state arrived.
+    pub full_state_at: Option<Instant>,
+    /// When the last reduced state arrived.
+    pub reduced_state_at: Option<Instant>,
+    /// Settings mirror (valid once `settings_known`).
+    pub settings: Settings,
+    /// Whether every settings chunk was read back since the last connect.
+    pub settings_known: bool,
+    /// Odometry pose.
+    pub pose: Pose,
+    /// Encoder totals since the odometry origin.
+    pub odometry_totals: (i64, i64),
+    /// Link statistics.
+    pub link: LinkStats,
+    /// Moves waiting for their finish event.
+    pub pending_moves: usize,
+    /// Why the latest attempt to open a link failed, until one opens.
+    pub link_error: Option<String>,
+    /// Why the robot was refused after its hello, if it was.
+    pub refused: Option<RobotError>,
+}
+
+/// Registers a state subscriber.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct Subscribe(pub Recipient<StateUpdated>);
+
+/// Registers an event subscriber.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct SubscribeEvents(pub Recipient<RobotEvent>);
+
+/// Asks for a [`RobotSnapshot`].
+#[derive(Message)]
+#[rtype(result = "RobotSnapshot")]
+pub struct GetSnapshot;
+
+/// Waits until the robot has said hello (resolves at once if it has).
+#[derive(Message)]
+#[rtype(result = "Result<Hello, RobotError>")]
+pub struct WaitConnected;
+
+/// Enqueues a move; resolves when the robot reports it finished.
+#[derive(Message)]
+#[rtype(result = "Result<MoveOutcome, RobotError>")]
+pub struct Enqueue {
+    /// The move.
+    pub command: MoveCommand,
+    /// A word of the caller's that comes back in the move's [`RobotEventKind::MoveFinished`], so
+    /// a subscriber can tell which of its moves ended without knowing the robot's move ids.
+    pub tag: u32,
+}
+
+impl Enqueue {
+    /// A move with no tag (0).
+    pub fn new(command: MoveCommand) -> Self {
+        Self { command, tag: 0 }
+    }
+
+    /// A move carrying `tag` back in its finished event.
+    pub fn tagged(command: MoveCommand, tag: u32) -> Self {
+        Self { command, tag }
+    }
+}
+
+/// Resolves when the robot has no queued move left.
+#[derive(Message)]
+#[rtype(result = "Result<(), RobotError>")]
+pub struct WaitIdle;
+
+/// A command with no answer beyond being sent.
+#[derive(Clone, Copy, Debug, Message)]
+#[rtype(result = "Result<(), RobotError>")]
+pub enum Command {
+    /// Drop every queued move.
+    ClearQueue,
+    /// Stop everything now.
+    Stop,
+    /// Hold wheel speeds (m/s).
+    WheelSpeeds(f32, f32),
+    /// Apply motor duties (permille).
+    MotorPower(i16, i16),
+    /// Follow the line at a speed (m/s), or stop following (`None`).
+    FollowLine(Option<f32>),
+    /// A line sensor calibration step.
+    CalibrateLine(CalibrationAction),
+    /// Set the status LED.
+    Led(u8, u8, u8),
+    /// Attach a message word to the robot's IR frames.
+    IrMessage(u16),
+    /// Reconfigure the state reflector.
+    Reflector(ReflectorSetup),
+}
+
+/// Writes one settings range; resolves when read-back confirms it.
+#[derive(Message)]
+#[rtype(result = "Result<(), RobotError>")]
+pub struct WriteSettings {
+    /// Byte offset.
+    pub offset: usize,
+    /// New bytes.
+    pub bytes: Vec<u8>,
+}
+
+/// Reads every setting back from the robot.
+#[derive(Message)]
+#[rtype(result = "Result<Settings, RobotError>")]
+pub struct ReadSettings;
+
+/// Stores the robot's settings in its flash.
+#[derive(Message)]
+#[rtype(result = "Result<(), RobotError>")]
+pub struct SaveSettings;
+
+/// Restores the factory settings and reads them back.
+#[derive(Message)]
+#[rtype(result = "Result<Settings, RobotError>")]
+pub struct RestoreDefaults;
+
+/// Moves the odometry origin.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct SetOdometryOrigin(pub Pose);
+
+/// Closes the link and stops the actor.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct Close;

@@ -1,0 +1,364 @@
+//! `RobotActor`: one robot on the host (thesis ch. 5 and 9). It owns the robot's link, keeps the
+//! reflected state and a mirror of its settings, turns typed commands into packets, resolves move
+//! futures from the robot's own events, tracks odometry and link statistics, and reconnects with
+//! backoff when the link is lost.
+//!
+//! The actor's state is grouped by concern, each in its own file: the link's liveness (ping,
+//! round trips, loss, reconnect: `liveness`), the greeting (`greeting`), the settings mirror
+//! (`settings`) and the moves in flight (`moves`); its public types are in `messages` and
+//! `error`, re-exported here.
+
+use std::sync::Arc;
+
+use actix::prelude::*;
+use protocol::packets::{self, AnyPacket, NackReason};
+use protocol::{Frame, Packet, PacketType, ReducedState, RobotState, Settings};
+use tokio::sync::{mpsc, oneshot};
+use tokio::time::Instant;
+use tracing::{debug, info, warn};
+
+use crate::link::{Connector, LinkEvent};
+use crate::odometry::{Geometry, Odometry};
+
+mod error;
+mod greeting;
+mod liveness;
+mod messages;
+mod moves;
+mod settings;
+
+pub use error::{incompatibilities, Incompatibility, RobotError};
+pub use liveness::LinkStats;
+pub use messages::{
+    Close, Command, Enqueue, GetSnapshot, MoveCommand, ReadSettings, ReflectorSetup,
+    RestoreDefaults, RobotConfig, RobotEvent, RobotEventKind, RobotSnapshot, SaveSettings,
+    SetOdometryOrigin, StateUpdated, Subscribe, SubscribeEvents, WaitConnected, WaitIdle,
+    WriteSettings,
+};
+pub use settings::host_settings_layout;
+
+use greeting::Greeting;
+use liveness::Liveness;
+use moves::Moves;
+use settings::SettingsMirror;
+
+type Reply<T> = oneshot::Sender<Result<T, RobotError>>;
+
+/// The host-side representation of one robot.
+pub struct RobotActor {
+    connector: Arc<dyn Connector>,
+    config: RobotConfig,
+    link: Liveness,
+    greeting: Greeting,
+    reflected: Reflected,
+    mirror: SettingsMirror,
+    odometry: Odometry,
+    subscribers: Subscribers,
+    moves: Moves,
+}
+
+/// The robot's latest reflected state.
+#[derive(Default)]
+struct Reflected {
+    /// Fields a reduced packet does not carry keep their last full value.
+    state: RobotState,
+    /// When the last full state arrived.
+    full_at: Option<Instant>,
+    /// When the last reduced state arrived.
+    reduced_at: Option<Instant>,
+}
+
+impl Reflected {
+    fn merge_reduced(&mut self, r: ReducedState) {
+        self.state.uptime_ms = r.uptime_ms;
+        self.state.encoders = r.encoders;
+        self.state.wheels = r.wheels;
+        self.state.line.position_um = r.line_position_um;
+        self.state.line.flags = r.line_flags;
+    }
+}
+
+/// Who hears from the actor.
+#[derive(Default)]
+struct Subscribers {
+    /// Every reflected state, with its odometry pose.
+    states: Vec<Recipient<StateUpdated>>,
+    /// Every event.
+    events: Vec<Recipient<RobotEvent>>,
+}
+
+impl RobotActor {
+    /// An actor that will connect through `connector` when started.
+    pub fn new(connector: Arc<dyn Connector>, config: RobotConfig) -> Self {
+        let settings = Settings::default();
+        let odometry = Odometry::new(Geometry::from_settings(&settings), config.origin);
+        Self {
+            connector,
+            link: Liveness::new(config.min_backoff),
+            config,
+            greeting: Greeting::default(),
+            reflected: Reflected::default(),
+            mirror: SettingsMirror::new(settings),
+            odometry,
+            subscribers: Subscribers::default(),
+            moves: Moves::new(),
+        }
+    }
+
+    fn robot_id(&self) -> u16 {
+        self.greeting.hello.map_or(0, |h| h.robot_id)
+    }
+
+    fn not_connected(&self) -> RobotError {
+        self.greeting
+            .refused
+            .clone()
+            .unwrap_or(RobotError::NotConnected {
+                robot: self.robot_id(),
+            })
+    }
+
+    fn send<P: Packet>(&mut self, p: &P) -> Result<(), RobotError> {
+        let tx = self.link.tx.as_ref().ok_or_else(|| self.not_connected())?;
+        let (buf, n) = protocol::frame::encode_to_array(p);
+        match tx.try_send(buf[..n].to_vec()) {
+            Ok(()) => {
+                self.link.stats.packets_out += 1;
+                Ok(())
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => Err(RobotError::Congested {
+                robot: self.robot_id(),
+            }),
+            Err(mpsc::error::TrySendError::Closed(_)) => Err(self.not_connected()),
+        }
+    }
+
+    /// Settings operations need a hello (whose layout was checked on arrival) and no refusal.
+    fn layout_ok(&self) -> Result<(), RobotError> {
+        match (&self.greeting.refused, self.greeting.hello) {
+            (Some(refusal), _) => Err(refusal.clone()),
+            (None, None) => Err(self.not_connected()),
+            (None, Some(_)) => Ok(()),
+        }
+    }
+
+    fn emit(&self, kind: RobotEventKind) {
+        let e = RobotEvent {
+            robot_id: self.robot_id(),
+            at: Instant::now(),
+            kind,
+        };
+        for s in &self.subscribers.events {
+            s.do_send(e.clone());
+        }
+    }
+
+    fn publish_state(&mut self, reduced: bool) {
+        let pose = self.odometry.update(
+            self.reflected.state.encoders.left_ticks,
+            self.reflected.state.encoders.right_ticks,
+        );
+        let u = StateUpdated {
+            robot_id: self.robot_id(),
+            at: Instant::now(),
+            state: self.reflected.state,
+            reduced,
+            pose,
+        };
+        for s in &self.subscribers.states {
+            s.do_send(u);
+        }
+    }
+
+    fn handle_packet(&mut self, packet: AnyPacket) {
+        match packet {
+            AnyPacket::State(s) => {
+                self.reflected.state = s;
+                self.reflected.full_at = Some(Instant::now());
+                self.publish_state(false);
+            }
+            AnyPacket::ReducedState(r) => {
+                self.reflected.merge_reduced(r);
+                self.reflected.reduced_at = Some(Instant::now());
+                self.publish_state(true);
+            }
+            AnyPacket::Hello(h) => self.on_hello(h),
+            AnyPacket::Pong(p) => self.link.on_pong(p.seq),
+            AnyPacket::SettingsData(d) => self.on_settings_data(d),
+            AnyPacket::SettingsSaved(_) => self.mirror.saved(),
+            AnyPacket::Log(l) => {
+                info!(
+                    robot = self.robot_id(),
+                    module = l.module(),
+                    level = l.level,
+                    "{}",
+                    l.text()
+                );
+            }
+            AnyPacket::Nack(n) => {
+                let robot = self.robot_id();
+                let packet = PacketType::from_code(n.packet_type).map_or("?", |t| t.name());
+                let reason = NackReason::try_from(n.reason).ok();
+                warn!(robot, packet, ?reason, "command refused");
+                let err = RobotError::Refused {
+                    robot,
+                    packet,
+                    reason,
+                };
+                if n.packet_type == PacketType::SettingsSave as u8 {
+                    self.mirror.save_refused(err.clone());
+                }
+                if n.packet_type == PacketType::SettingsUpdate as u8 {
+                    self.on_settings_refused(n, reason);
+                }
+                self.emit(RobotEventKind::Refused(n));
+            }
+            AnyPacket::MoveFinished(m) => self.on_move_finished(m),
+            AnyPacket::QueueEmpty(_) => self.on_queue_empty(),
+            AnyPacket::Obstacle(o) => self.emit(RobotEventKind::Obstacle(o)),
+            AnyPacket::RobotEncountered(e) => self.emit(RobotEventKind::Encounter(e)),
+            AnyPacket::LineEvent(e) => self.emit(RobotEventKind::Line(e.lost != 0)),
+            AnyPacket::WatchdogStop(_) => self.emit(RobotEventKind::WatchdogStop),
+            AnyPacket::LoopOverrun(o) => self.emit(RobotEventKind::Overrun(o.late_us)),
+            other => debug!(
+                packet = other.packet_type().name(),
+                "ignored host-bound packet"
+            ),
+        }
+    }
+
+    fn snapshot(&self) -> RobotSnapshot {
+        RobotSnapshot {
+            robot_id: self.robot_id(),
+            peer: self.connector.peer(),
+            connected: self.link.tx.is_some() && self.greeting.greeted,
+            hello: self.greeting.hello,
+            state: self.reflected.state,
+            full_state_at: self.reflected.full_at,
+            reduced_state_at: self.reflected.reduced_at,
+            settings: self.mirror.settings,
+            settings_known: self.greeting.hello.is_some() && self.mirror.chunks_missing == 0,
+            pose: self.odometry.pose(),
+            odometry_totals: self.odometry.totals(),
+            link: self.link.stats_now(),
+            pending_moves: self.moves.pending(),
+            link_error: self.link.link_error.clone(),
+            refused: self.greeting.refused.clone(),
+        }
+    }
+}
+
+impl Actor for RobotActor {
+    type Context = Context<Self>;
+
+    fn started(&mut self, ctx: &mut Self::Context) {
+        self.connect(ctx);
+        ctx.run_interval(self.config.ping_period, |act, ctx| act.ping(ctx));
+    }
+
+    fn stopped(&mut self, _: &mut Self::Context) {
+        // Best effort: a robot left alone stops through its watchdog anyway.
+        let _ = self.send(&packets::Stop {});
+    }
+}
+
+impl StreamHandler<(u64, LinkEvent)> for RobotActor {
+    fn handle(&mut self, (generation, event): (u64, LinkEvent), ctx: &mut Self::Context) {
+        if generation != self.link.generation {
+            return;
+        }
+        match event {
+            LinkEvent::Packet(bytes) => {
+                self.link.last_seen = Some(Instant::now());
+                match Frame::parse(&bytes) {
+                    Ok(frame) => {
+                        self.link.stats.packets_in += 1;
+                        self.handle_packet(frame.packet());
+                    }
+                    Err(e) => {
+                        self.link.stats.checksum_errors += 1;
+                        debug!(error = %e, "dropped frame");
+                    }
+                }
+            }
+            LinkEvent::Closed(err) => {
+                let why = err.map_or_else(|| "closed by peer".to_string(), |e| e.to_string());
+                self.link_lost(ctx, &why);
+            }
+        }
+    }
+
+    fn finished(&mut self, _: &mut Self::Context) {
+        // A link's stream ending is handled through `LinkEvent::Closed` or the link timeout; the
+        // actor lives on to reconnect.
+    }
+}
+
+impl Handler<Subscribe> for RobotActor {
+    type Result = ();
+    fn handle(&mut self, msg: Subscribe, _: &mut Self::Context) {
+        self.subscribers.states.push(msg.0);
+    }
+}
+
+impl Handler<SubscribeEvents> for RobotActor {
+    type Result = ();
+    fn handle(&mut self, msg: SubscribeEvents, _: &mut Self::Context) {
+        self.subscribers.events.push(msg.0);
+    }
+}
+
+impl Handler<GetSnapshot> for RobotActor {
+    type Result = MessageResult<GetSnapshot>;
+    fn handle(&mut self, _: GetSnapshot, _: &mut Self::Context) -> Self::Result {
+        MessageResult(self.snapshot())
+    }
+}
+
+impl Handler<Command> for RobotActor {
+    type Result = Result<(), RobotError>;
+    fn handle(&mut self, msg: Command, _: &mut Self::Context) -> Self::Result {
+        match msg {
+            Command::ClearQueue => self.send(&packets::ClearQueue {}),
+            Command::Stop => self.send(&packets::Stop {}),
+            Command::WheelSpeeds(left_mps, right_mps) => self.send(&packets::WheelSpeeds {
+                left_mps,
+                right_mps,
+            }),
+            Command::MotorPower(left_pwm, right_pwm) => self.send(&packets::MotorPower {
+                left_pwm,
+                right_pwm,
+            }),
+            Command::FollowLine(speed) => self.send(&packets::LineFollow {
+                enable: u8::from(speed.is_some()),
+                speed_mps: speed.unwrap_or(0.0),
+            }),
+            Command::CalibrateLine(action) => self.send(&packets::LineCalibration {
+                action: action as u8,
+            }),
+            Command::Led(red, green, blue) => self.send(&packets::SetLed { red, green, blue }),
+            Command::IrMessage(message) => self.send(&packets::IrMessage { message }),
+            Command::Reflector(r) => {
+                self.config.reflector = r;
+                self.send(&packets::ReflectorConfig {
+                    mode: r.mode as u8,
+                    period_ms: r.period_ms,
+                })
+            }
+        }
+    }
+}
+
+impl Handler<SetOdometryOrigin> for RobotActor {
+    type Result = ();
+    fn handle(&mut self, msg: SetOdometryOrigin, _: &mut Self::Context) {
+        self.odometry.reset(msg.0);
+    }
+}
+
+impl Handler<Close> for RobotActor {
+    type Result = ();
+    fn handle(&mut self, _: Close, ctx: &mut Self::Context) {
+        ctx.stop();
+    }
+}
