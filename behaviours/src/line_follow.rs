@@ -259,8 +259,9 @@ impl Behaviour for LineFollow {
                 f.ir = Some((world.time, f64::from(seen.range_mm) * 1e-3));
             }
             Event::LineLost => f.line_losses += 1,
-            // A robot back from a link loss has stopped following; it is sent its speed again.
-            Event::Connected => f.sent = 0.0,
+            // A robot whose link is lost has stopped (its watchdog) and one back has not
+            // resumed: its speed is sent again, held by the supervisor until the link is back.
+            Event::LinkLost | Event::Connected => f.sent = 0.0,
             _ => {}
         }
         Vec::new()

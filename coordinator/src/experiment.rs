@@ -73,6 +73,61 @@ pub struct Plan {
     pub body_faults: Vec<(u16, BodyFault)>,
     /// Kicks of simulated robots: bodies moved without their odometry knowing.
     pub kicks: Vec<Kick>,
+    /// Settings written to every robot before the experiment starts.
+    pub settings: Vec<SettingWrite>,
+}
+
+/// One robot setting the coordinator writes to every robot before the experiment starts,
+/// confirmed by read-back; each robot actor writes it again after a reconnect or reboot.
+/// Parsed from `PATH=VALUE`, e.g. `watchdog.timeout_ms=400` (`docs/protocol.md` lists the paths).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SettingWrite {
+    /// The field's dotted path.
+    pub path: String,
+    /// Its byte offset in the settings.
+    pub offset: usize,
+    /// The value's bytes, little-endian as on the wire.
+    pub bytes: Vec<u8>,
+}
+
+impl std::str::FromStr for SettingWrite {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        use protocol::layout::Layout;
+        let (path, value) = s
+            .split_once('=')
+            .ok_or_else(|| format!("{s:?}: expected PATH=VALUE, e.g. watchdog.timeout_ms=400"))?;
+        let (path, value) = (path.trim(), value.trim());
+        let (offset, ty) = protocol::Settings::LAYOUT
+            .field_type(path)
+            .ok_or_else(|| format!("{path:?} is not a robot setting (see docs/protocol.md)"))?;
+        let bad = |e: &dyn std::fmt::Display| format!("{path} is a {}: {value:?}: {e}", ty.name);
+        macro_rules! number {
+            ($t:ty) => {
+                value.parse::<$t>().map_err(|e| bad(&e))?.to_le_bytes().to_vec()
+            };
+        }
+        let bytes = match ty.name {
+            "u8" => number!(u8),
+            "u16" => number!(u16),
+            "u32" => number!(u32),
+            "i8" => number!(i8),
+            "i16" => number!(i16),
+            "i32" => number!(i32),
+            "f32" => number!(f32),
+            "f64" => number!(f64),
+            other if ty.fields.is_empty() && ty.array.is_none() => {
+                return Err(format!("{path} is a {other}, which --setting cannot write"))
+            }
+            _ => return Err(format!("{path} is a group of settings: name one of its fields")),
+        };
+        Ok(SettingWrite {
+            path: path.to_string(),
+            offset,
+            bytes,
+        })
+    }
 }
 
 impl Plan {
@@ -94,6 +149,7 @@ impl Plan {
             faults: Vec::new(),
             body_faults: Vec::new(),
             kicks: Vec::new(),
+            settings: Vec::new(),
         }
     }
 
@@ -248,6 +304,7 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     // A robot that cannot answer within the whole time limit will not be waited for longer.
     let deadline = HELLO_DEADLINE.min(plan.duration);
     let robots = connect_all(&discovered, origins.as_deref(), world, &observer, deadline).await?;
+    write_settings(&robots, &plan.settings).await?;
     let (supervisor, model, done) = start_supervisor(&plan, &setup, &robots);
     hooks.serve_panel(&supervisor, &robots, world).await?;
     // From here to the verdict the model is checked against the ground truth.
@@ -657,6 +714,7 @@ fn build_report(
             .iter()
             .map(|(t, i, why)| format!("{t:?}: {i:?}: {why}"))
             .collect(),
+        links: outcome.links,
         encounters: outcome.encounters.len(),
         restarts: outcome.restarts,
         experiment_time,
@@ -851,6 +909,26 @@ async fn connect_all(
         robots.push((hello.robot_id, robot, peer));
     }
     Ok(robots.into_iter().map(|(id, r, _)| (id, r)).collect())
+}
+
+/// Writes each of `settings` to every robot, confirmed by read-back: a refusal (a value out of
+/// the robot's range) ends the experiment before it starts, naming the setting and the robot.
+async fn write_settings(robots: &[(u16, Robot)], settings: &[SettingWrite]) -> Result<()> {
+    for (id, robot) in robots {
+        for w in settings {
+            let msg = robot_actor::WriteSettings {
+                offset: w.offset,
+                bytes: w.bytes.clone(),
+            };
+            robot
+                .addr()
+                .send(msg)
+                .await
+                .map_err(|e| anyhow!("--setting {}: robot {id}: {e}", w.path))?
+                .map_err(|e| anyhow!("--setting {}: robot {id} refused it: {e}", w.path))?;
+        }
+    }
+    Ok(())
 }
 
 /// Waits for one robot's hello; a timeout says why the link never came up, if it did not.

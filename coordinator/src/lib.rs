@@ -30,7 +30,7 @@ pub mod supervisor;
 pub mod sweep;
 pub mod world_model;
 
-pub use experiment::{load_world, run, run_with, Kick, LinkFault, Plan, Transport};
+pub use experiment::{load_world, run, run_with, Kick, LinkFault, Plan, SettingWrite, Transport};
 pub use instruments::Run;
 pub use observer::Instruments;
 pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};

@@ -140,6 +140,8 @@ pub struct Report {
     pub obstacles: Vec<ObstacleReport>,
     /// Intents the safety check held back.
     pub held_intents: Vec<String>,
+    /// Robot links lost and (re)connected during the run.
+    pub links: Vec<crate::supervisor::LinkRecord>,
     /// Encounters reported by the robots.
     pub encounters: usize,
     /// Behaviour restarts.
@@ -198,6 +200,7 @@ struct JsonReport<'a> {
     lost_s: f64,
     worst_uncertainty_mm: f64,
     held_intents: &'a [String],
+    links: &'a [crate::supervisor::LinkRecord],
     encounters: usize,
     restarts: u32,
     experiment_time_s: f64,
@@ -328,6 +331,7 @@ impl Report {
             lost_s: self.lost_time().as_secs_f64(),
             worst_uncertainty_mm: self.worst_uncertainty_m() * 1e3,
             held_intents: &self.held_intents,
+            links: &self.links,
             encounters: self.encounters,
             restarts: self.restarts,
             experiment_time_s: self.experiment_time.as_secs_f64(),
@@ -439,6 +443,17 @@ impl fmt::Display for Report {
                 writeln!(f, "    {h}")?;
             }
         }
+        // Each robot's first connection is the normal start; only what happened after is news.
+        let mut seen = std::collections::HashSet::new();
+        let news: Vec<String> = self
+            .links
+            .iter()
+            .filter(|l| l.what != "connected" || !seen.insert(l.robot))
+            .map(|l| format!("robot {} {} at {:.2} s", l.robot, l.what, l.at_s))
+            .collect();
+        if !news.is_empty() {
+            writeln!(f, "  links: {}", news.join(", "))?;
+        }
         write!(
             f,
             "  experiment time {:.2} s, wall time {:.2} s",
@@ -467,6 +482,7 @@ mod tests {
             robots: Vec::new(),
             obstacles: Vec::new(),
             held_intents: Vec::new(),
+            links: Vec::new(),
             encounters: 0,
             restarts: 0,
             experiment_time: Duration::from_secs(10),

@@ -43,6 +43,21 @@ pub struct Outcome {
     pub views: Vec<behaviours::RobotView>,
     /// Each robot's localisation record (lost episodes, time lost, worst uncertainty).
     pub localisation: Vec<(u16, crate::world_model::LocalisationStats)>,
+    /// Every robot link lost or (re)connected during the experiment, in order.
+    pub links: Vec<LinkRecord>,
+}
+
+/// A robot's link lost, or the robot (re)connected, during an experiment.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LinkRecord {
+    /// The robot.
+    pub robot: u16,
+    /// `"lost"` or `"connected"`.
+    pub what: &'static str,
+    /// Experiment time, seconds (0 before the behaviour started).
+    pub at_s: f64,
+    /// Wall-clock time, milliseconds since the Unix epoch: lines up with other processes' logs.
+    pub unix_ms: u64,
 }
 
 /// Ends the experiment now (Ctrl-C, time limit): every robot is stopped.
@@ -68,6 +83,7 @@ pub struct Supervisor {
     snapshot_period: Duration,
     safety: Safety,
     held: Vec<(Duration, Intent, String)>,
+    links: Vec<LinkRecord>,
     restarts: u32,
     done: Option<oneshot::Sender<Outcome>>,
     started: bool,
@@ -114,6 +130,7 @@ impl Supervisor {
             snapshot_period,
             safety,
             held: Vec::new(),
+            links: Vec::new(),
             restarts: 0,
             done: Some(done),
             started: false,
@@ -138,6 +155,23 @@ impl Supervisor {
         self.robots.iter().find(|(i, _)| *i == id).map(|(_, r)| r)
     }
 
+    fn note_link(&mut self, robot: u16, what: &'static str) {
+        let unix_ms = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        let at_s = if self.started {
+            (Instant::now() - self.started_at).as_secs_f64()
+        } else {
+            0.0
+        };
+        self.links.push(LinkRecord {
+            robot,
+            what,
+            at_s,
+            unix_ms,
+        });
+    }
+
     fn stop_all(&mut self) {
         self.planned.clear();
         for (_, r) in &self.robots {
@@ -156,6 +190,7 @@ impl Supervisor {
                 restarts: self.restarts,
                 views: self.model.views(),
                 localisation: self.model.localisation_stats(Instant::now()),
+                links: std::mem::take(&mut self.links),
             });
         }
         // The supervisor lives on, keeping the world model current while the robots brake and
@@ -398,6 +433,13 @@ impl Supervisor {
             self.held.push((world.time, intent, reason));
             return false;
         }
+        // The robot's watchdog has stopped it; a command would be lost, or (queued in a link
+        // that comes back) carried out from a stale plan.
+        if world.robot(id).is_some_and(|r| !r.connected) {
+            let reason = format!("robot {id}'s link is lost");
+            self.held.push((world.time, intent, reason));
+            return false;
+        }
         self.carry_out_checked(intent, world)
     }
 
@@ -496,8 +538,10 @@ impl Handler<RobotEvent> for Supervisor {
             }
             RobotEventKind::LinkLost => {
                 self.model.lost(e.robot_id);
+                self.note_link(e.robot_id, "lost");
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
             }
+            RobotEventKind::Connected(_) => self.note_link(e.robot_id, "connected"),
             _ => {}
         }
         // While a robot is re-localised its moves are the routine's (or ones the stop dropped):

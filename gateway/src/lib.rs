@@ -12,7 +12,7 @@
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
-use protocol::packets::{AnyPacket, HelloRequest};
+use protocol::packets::{AnyPacket, HelloRequest, PacketType};
 use robot_actor::link::zenoh::{open_session, FleetSession, Keys, ZenohOptions};
 use robot_actor::link::{Connector, Link, LinkEvent};
 use serde::Serialize;
@@ -51,6 +51,11 @@ pub struct RobotStats {
     pub packets_down: u64,
     /// The last connect error, while not connected.
     pub last_error: Option<String>,
+    /// Round trip of the last ping the host sent through the gateway and its pong, gateway to
+    /// robot and back, milliseconds.
+    pub rtt_ms: Option<f64>,
+    /// The longest such round trip seen, milliseconds.
+    pub rtt_max_ms: Option<f64>,
 }
 
 type Stats = Arc<Mutex<Vec<RobotStats>>>;
@@ -251,14 +256,25 @@ impl Bridge {
         if up.put(hello).await.is_ok() {
             with_stats(&self.stats, self.slot, |s| s.packets_up += 1);
         }
+        // Pings are timed by their type code alone: the gateway decodes nothing else.
+        let mut ping_sent: Option<std::time::Instant> = None;
         loop {
             tokio::select! {
                 event = link.rx.recv() => match event {
                     Some(LinkEvent::Packet(p)) => {
+                        let pong = packet_type(&p) == Some(PacketType::Pong as u8);
+                        let rtt = ping_sent.take_if(|_| pong).map(|t| t.elapsed());
                         if up.put(p).await.is_err() {
                             break;
                         }
-                        with_stats(&self.stats, self.slot, |s| s.packets_up += 1);
+                        with_stats(&self.stats, self.slot, |s| {
+                            s.packets_up += 1;
+                            if let Some(rtt) = rtt {
+                                let ms = rtt.as_secs_f64() * 1e3;
+                                s.rtt_ms = Some(ms);
+                                s.rtt_max_ms = Some(s.rtt_max_ms.map_or(ms, |m| m.max(ms)));
+                            }
+                        });
                     }
                     Some(LinkEvent::Closed(why)) => {
                         tracing::warn!(robot = id, ?why, "robot link closed");
@@ -268,6 +284,9 @@ impl Bridge {
                 },
                 packet = down.recv() => {
                     let Some(packet) = packet else { break };
+                    if packet_type(&packet) == Some(PacketType::Ping as u8) {
+                        ping_sent = Some(std::time::Instant::now());
+                    }
                     if link.tx.send(packet).await.is_err() {
                         break;
                     }
@@ -280,6 +299,11 @@ impl Bridge {
         drop(subscriber);
         true
     }
+}
+
+/// A packet's type code: the second byte of its header (after the checksum).
+fn packet_type(packet: &[u8]) -> Option<u8> {
+    packet.get(1).copied()
 }
 
 /// Waits for the robot's hello on a new link, asking for it when it does not come; the robot's

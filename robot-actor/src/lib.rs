@@ -10,7 +10,7 @@ pub mod settings;
 
 pub use actor::{
     Incompatibility, MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind,
-    StateUpdated,
+    StateUpdated, WriteSettings,
 };
 pub use odometry::{Odometry, Pose};
 pub use robot::{CallError, Robot};

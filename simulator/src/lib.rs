@@ -13,6 +13,6 @@ pub mod spec;
 /// The physics-free world (tracks, graph, world files, presets), from the `world` crate.
 pub use ::world;
 
-pub use sim::{BodyFault, SimConfig, Simulation};
+pub use sim::{BodyFault, HostSilence, SimConfig, Simulation};
 pub use spec::RobotSpec;
 pub use world::World;

@@ -21,7 +21,7 @@ use crate::link::{PacketQueue, LINK_BUFFER_BYTES};
 use crate::sim::{Pose, Simulation};
 
 /// How the stepping task keeps time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Pace {
     /// One tokio `sleep(dt)` per step: real time on a real clock, instant under a paused clock.
     TokioClock,
@@ -29,6 +29,9 @@ pub enum Pace {
     Unpaced,
     /// Steps in batches and sleeps until the wall clock catches up.
     WallClock,
+    /// As [`Pace::WallClock`], with simulated time running at this fraction of the wall
+    /// clock's pace (0.5: one simulated second every two seconds).
+    Scaled(f64),
 }
 
 enum Command {
@@ -62,6 +65,18 @@ pub struct Truth {
     pub collision_log: Vec<(f64, u16, u16)>,
     /// Robot–wall contacts so far.
     pub wall_contacts: usize,
+    /// Each robot–wall contact: when it began (simulated seconds) and the robot's id.
+    pub wall_contact_log: Vec<(f64, u16)>,
+    /// Each robot's true wheel rim speeds (left, right), m/s.
+    pub wheel_speeds_mps: Vec<[f64; 2]>,
+    /// When each robot last heard its host, simulated seconds.
+    pub last_host_packet_s: Vec<Option<f64>>,
+    /// Each robot's host silences so far.
+    pub host_silences: Vec<Vec<crate::sim::HostSilence>>,
+    /// Settings update packets each robot received from its host.
+    pub settings_updates: Vec<u32>,
+    /// Each robot's firmware watchdog timeout now, milliseconds (0: off).
+    pub watchdog_ms: Vec<u16>,
 }
 
 /// The robots' true poses at one instant: the part of [`Truth`] cheap enough to ask for many times
@@ -334,6 +349,31 @@ pub fn truth(sim: &Simulation) -> Truth {
             .iter()
             .filter(|c| matches!(c.kind, ContactKind::RobotWall(_)))
             .count(),
+        wall_contact_log: sim
+            .contacts()
+            .iter()
+            .filter_map(|c| match c.kind {
+                ContactKind::RobotWall(a) => Some((c.at_s, sim.robots()[a].id())),
+                _ => None,
+            })
+            .collect(),
+        wheel_speeds_mps: sim
+            .robots()
+            .iter()
+            .map(|r| r.wheel_speeds_mps(sim.spec()))
+            .collect(),
+        last_host_packet_s: sim.robots().iter().map(|r| r.last_host_packet_s()).collect(),
+        host_silences: sim
+            .robots()
+            .iter()
+            .map(|r| r.host_silences().to_vec())
+            .collect(),
+        settings_updates: sim.robots().iter().map(|r| r.settings_updates()).collect(),
+        watchdog_ms: sim
+            .robots()
+            .iter()
+            .map(|r| r.firmware().settings().watchdog.timeout_ms)
+            .collect(),
     }
 }
 
@@ -493,9 +533,13 @@ async fn step_loop(
         match pace {
             Pace::TokioClock => tokio::time::sleep(dt).await,
             Pace::Unpaced => tokio::task::yield_now().await,
-            Pace::WallClock => {
+            Pace::WallClock | Pace::Scaled(_) => {
+                let rate = match pace {
+                    Pace::Scaled(r) => r,
+                    _ => 1.0,
+                };
                 // Sleep in 10 ms batches: finer sleeps cost more than they buy.
-                let ahead = sim.now() - sim_start;
+                let ahead = (sim.now() - sim_start).div_f64(rate);
                 let target = wall_start + ahead;
                 if target > tokio::time::Instant::now() + Duration::from_millis(10) {
                     tokio::time::sleep_until(target).await;

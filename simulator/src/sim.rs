@@ -133,6 +133,28 @@ pub struct SimRobot {
     distance_m: f64,
     pose: Pose,
     fault: Option<BodyFault>,
+    last_host_packet_ns: Option<u64>,
+    still_since_ns: Option<u64>,
+    silences: Vec<HostSilence>,
+    settings_updates: u32,
+}
+
+/// How long the host must be silent before the simulator logs a [`HostSilence`]: well over the
+/// host's ping period, under the firmware's default watchdog (500 ms).
+pub const SILENCE_NS: u64 = 250_000_000;
+/// A wheel whose rim moves slower than this counts as stopped, m/s.
+pub const WHEEL_STOPPED_MPS: f64 = 0.001;
+
+/// A time the host sent a robot nothing for at least [`SILENCE_NS`], and what the robot's body
+/// did meanwhile (its wheels' true speeds, not what its encoders say).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HostSilence {
+    /// When the last host packet before the silence reached the robot, simulated seconds.
+    pub last_packet_s: f64,
+    /// When the next one reached it, if one did.
+    pub resumed_s: Option<f64>,
+    /// When both wheels were first below [`WHEEL_STOPPED_MPS`] within the silence, if they were.
+    pub wheels_stopped_s: Option<f64>,
 }
 
 impl SimRobot {
@@ -167,6 +189,60 @@ impl SimRobot {
     /// Whether the link is up.
     pub fn link_up(&self) -> bool {
         self.link.is_up()
+    }
+    /// When the last host packet reached the robot, simulated seconds.
+    pub fn last_host_packet_s(&self) -> Option<f64> {
+        self.last_host_packet_ns.map(|ns| ns as f64 * 1e-9)
+    }
+    /// Settings update packets the host sent this robot so far (accepted or not).
+    pub fn settings_updates(&self) -> u32 {
+        self.settings_updates
+    }
+    /// Every silence of the host towards this robot so far (see [`HostSilence`]).
+    pub fn host_silences(&self) -> &[HostSilence] {
+        &self.silences
+    }
+    /// True rim speed of each wheel (left, right), m/s.
+    pub fn wheel_speeds_mps(&self, spec: &RobotSpec) -> [f64; 2] {
+        let r = spec.wheel_radius_m();
+        [self.wheels[0].omega * r, self.wheels[1].omega * r]
+    }
+    /// Keeps the log of host silences at `now_ns`; `packet` when a host packet arrived.
+    fn watch_host(&mut self, now_ns: u64, packet: bool, radius_m: f64) {
+        let still = self
+            .wheels
+            .iter()
+            .all(|w| (w.omega * radius_m).abs() < WHEEL_STOPPED_MPS);
+        self.still_since_ns = if still {
+            self.still_since_ns.or(Some(now_ns))
+        } else {
+            None
+        };
+        let seconds = |ns: u64| ns as f64 * 1e-9;
+        if packet {
+            if let Some(s) = self.silences.last_mut().filter(|s| s.resumed_s.is_none()) {
+                s.resumed_s = Some(seconds(now_ns));
+            }
+            self.last_host_packet_ns = Some(now_ns);
+            return;
+        }
+        let Some(last) = self.last_host_packet_ns else {
+            return;
+        };
+        match self.silences.last_mut().filter(|s| s.resumed_s.is_none()) {
+            Some(s) => {
+                if s.wheels_stopped_s.is_none() {
+                    s.wheels_stopped_s = self.still_since_ns.map(seconds);
+                }
+            }
+            None if now_ns - last >= SILENCE_NS => self.silences.push(HostSilence {
+                last_packet_s: seconds(last),
+                resumed_s: None,
+                // Wheels that stood before the silence began stopped, for it, when it began.
+                wheels_stopped_s: self.still_since_ns.map(|t| seconds(t.max(last))),
+            }),
+            None => {}
+        }
     }
     /// Battery terminal voltage, volts.
     pub fn battery_v(&self) -> f64 {
@@ -342,6 +418,10 @@ impl Simulation {
                     theta: start.heading_rad,
                 },
                 fault: None,
+                last_host_packet_ns: None,
+                still_since_ns: None,
+                silences: Vec::new(),
+                settings_updates: 0,
             });
         }
         owners.sort_by_key(|&(c, _)| c.into_raw_parts());
@@ -642,10 +722,17 @@ impl Simulation {
         self.read_sensors();
         let now = Instant::from_nanos(self.now_ns);
         let now_ns = self.now_ns;
+        let radius_m = self.spec.wheel_radius_m();
         let tick = |r: &mut SimRobot| {
+            let mut heard = false;
             while let Some(p) = r.link.recv_at_robot(now_ns) {
+                if p.get(1) == Some(&(protocol::PacketType::SettingsUpdate as u8)) {
+                    r.settings_updates += 1;
+                }
                 r.firmware.on_link_packet(now, &p);
+                heard = true;
             }
+            r.watch_host(now_ns, heard, radius_m);
             r.firmware.tick(now);
         };
         if self.robots.len() >= PARALLEL_FROM {

@@ -86,6 +86,11 @@ struct Args {
     /// (repeatable): its body moves at once and its odometry never learns of it.
     #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
     kick: Vec<simulator::cli::KickArg>,
+    /// Write robot setting PATH (a field of the robot's settings, e.g. watchdog.timeout_ms) to
+    /// VALUE on every robot before the experiment starts (repeatable); each robot gets it again
+    /// after a reconnect. A value the robot refuses ends the run before it starts.
+    #[arg(long = "setting", value_name = "PATH=VALUE")]
+    settings: Vec<coordinator::SettingWrite>,
     #[command(subcommand)]
     command: Option<Sub>,
 }
@@ -281,6 +286,7 @@ fn plan(args: &Args) -> Result<Plan> {
                 sideways_m: 0.0,
             })
             .collect(),
+        settings: args.settings.clone(),
         ..Plan::sim(behaviour)
     })
 }

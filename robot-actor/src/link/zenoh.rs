@@ -108,10 +108,18 @@ pub async fn open_session(options: &ZenohOptions) -> Result<FleetSession, LinkEr
 }
 
 fn session_config(options: &ZenohOptions) -> Result<zenoh::Config, LinkError> {
-    let mut config = match &options.config_file {
-        Some(path) => zenoh::Config::from_file(path)
-            .map_err(|e| unavailable(format!("{}: {e}", path.display())))?,
-        None => zenoh::Config::default(),
+    let (mut config, chose_multicast) = match &options.config_file {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| unavailable(format!("{}: {e}", path.display())))?;
+            let config = zenoh::Config::from_json5(&text)
+                .map_err(|e| unavailable(format!("{}: {e}", path.display())))?;
+            let tree: serde_json::Value = json5::from_str(&text)
+                .map_err(|e| unavailable(format!("{}: {e}", path.display())))?;
+            let chose = !tree["scouting"]["multicast"]["enabled"].is_null();
+            (config, chose)
+        }
+        None => (zenoh::Config::default(), false),
     };
     let set = |config: &mut zenoh::Config, key: &str, value: String| {
         config
@@ -119,7 +127,9 @@ fn session_config(options: &ZenohOptions) -> Result<zenoh::Config, LinkError> {
             .map_err(|e| unavailable(format!("{key} = {value}: {e}")))
     };
     set(&mut config, "mode", "\"peer\"".into())?;
-    if options.config_file.is_none() {
+    // zenoh's own default is to scout by multicast on every interface; ours is to meet only
+    // the peers named, unless the user's file says otherwise in so many words.
+    if !chose_multicast {
         set(&mut config, "scouting/multicast/enabled", "false".into())?;
     }
     let json = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
@@ -412,6 +422,28 @@ mod tests {
         assert_eq!(get("scouting/multicast/enabled"), "false");
         assert!(get("listen/endpoints").contains("tcp/127.0.0.1:7447"));
         assert!(get("connect/endpoints").contains("tcp/127.0.0.1:7448"));
+    }
+
+    #[test]
+    fn a_users_file_keeps_multicast_off_unless_it_turns_it_on() {
+        let dir = std::env::temp_dir().join(format!("pf-zenoh-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a temporary directory");
+        let with = |name: &str, text: &str| {
+            let path = dir.join(name);
+            std::fs::write(&path, text).expect("written");
+            let options = ZenohOptions {
+                config_file: Some(path),
+                ..Default::default()
+            };
+            let config = session_config(&options).expect("a configuration");
+            config.get_json("scouting/multicast/enabled").expect("set")
+        };
+        // JSON5, as zenoh's own files are: comments and unquoted keys.
+        let silent = "{ // nothing about scouting\n  transport: { unicast: { max_links: 2 } } }";
+        assert_eq!(with("silent.json5", silent), "false");
+        let on = "{ scouting: { multicast: { enabled: true } } }";
+        assert_eq!(with("on.json5", on), "true");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

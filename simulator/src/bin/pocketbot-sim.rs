@@ -32,6 +32,10 @@ struct Args {
     /// Run faster than real time instead of pacing to the wall clock.
     #[arg(long)]
     fast: bool,
+    /// Simulated seconds per wall-clock second (more than 0, at most 100; default 1): below 1
+    /// the robots live slower than the host, so its reaction times shrink in the robots' time.
+    #[arg(long, value_parser = parse_rate, conflicts_with = "fast")]
+    rate: Option<f64>,
     /// Stop after this many simulated seconds (more than 0, at most 1e6).
     #[arg(long, value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
     duration: Option<Duration>,
@@ -46,6 +50,17 @@ struct Args {
     /// its body moves at once and its odometry never learns of it.
     #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
     kick: Vec<simulator::cli::KickArg>,
+    /// Write the ground truth (true poses, boxes, contacts, wheel speeds, host silences) as JSON
+    /// to FILE every second and at exit, so another process can judge what happened.
+    #[arg(long, value_name = "FILE")]
+    truth: Option<std::path::PathBuf>,
+}
+
+fn parse_rate(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(r) if r > 0.0 && r <= 100.0 => Ok(r),
+        _ => Err(format!("{s:?}: give a number above 0 and at most 100")),
+    }
 }
 
 fn parse_body_fault(s: &str) -> Result<(u16, simulator::BodyFault), String> {
@@ -104,10 +119,10 @@ async fn main() -> Result<()> {
             .with_context(|| format!("--kick {}: no robot {} in the world", k.robot, k.robot))?;
         kicks.push((i, *k));
     }
-    let pace = if args.fast {
-        Pace::Unpaced
-    } else {
-        Pace::WallClock
+    let pace = match (args.fast, args.rate) {
+        (true, _) => Pace::Unpaced,
+        (false, Some(rate)) => Pace::Scaled(rate),
+        (false, None) => Pace::WallClock,
     };
     let (addrs, handle, task) = serve(sim, &args.bind, args.port_base, pace)
         .await
@@ -124,19 +139,99 @@ async fn main() -> Result<()> {
     for (i, k) in kicks {
         handle.displace_at(k.at, i, k.dx_m, k.dy_m, k.dtheta_rad);
     }
-    match args.duration {
-        Some(end) => loop {
-            let t = handle.truth().await.context("simulation stopped")?;
-            if t.now >= end {
-                break;
+    let mut terminate =
+        tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut written: Option<std::time::Instant> = None;
+    loop {
+        let t = handle.truth().await.context("simulation stopped")?;
+        let end = args.duration.is_some_and(|end| t.now >= end);
+        if let Some(path) = &args.truth {
+            if end || written.is_none_or(|w| w.elapsed() >= Duration::from_secs(1)) {
+                write_truth(path, &t, &addrs)?;
+                written = Some(std::time::Instant::now());
             }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        },
-        None => {
-            tokio::signal::ctrl_c().await?;
         }
+        if end {
+            break;
+        }
+        tokio::select! {
+            _ = tokio::time::sleep(Duration::from_millis(50)) => {}
+            _ = tokio::signal::ctrl_c() => break,
+            _ = terminate.recv() => break,
+        }
+    }
+    if let Some(path) = &args.truth {
+        let t = handle.truth().await.context("simulation stopped")?;
+        write_truth(path, &t, &addrs)?;
     }
     handle.stop();
     let _ = task.await;
+    Ok(())
+}
+
+/// Writes the ground truth to `path` whole: to a file beside it, then renamed over it, so a
+/// reader never sees half a file.
+fn write_truth(
+    path: &std::path::Path,
+    t: &simulator::runtime::Truth,
+    addrs: &[(u16, std::net::SocketAddr)],
+) -> Result<()> {
+    use serde_json::json;
+    let robots: Vec<_> = t
+        .robots
+        .iter()
+        .enumerate()
+        .map(|(i, (id, p))| {
+            let silences: Vec<_> = t.host_silences[i]
+                .iter()
+                .map(|s| {
+                    json!({
+                        "last_packet_s": s.last_packet_s,
+                        "resumed_s": s.resumed_s,
+                        "wheels_stopped_s": s.wheels_stopped_s,
+                    })
+                })
+                .collect();
+            json!({
+                "id": id,
+                "address": addrs.get(i).map(|(_, a)| format!("tcp://{a}")),
+                "pose": { "x": p.x, "y": p.y, "theta": p.theta },
+                "distance_m": t.distances_m[i],
+                "wheel_speeds_mps": t.wheel_speeds_mps[i],
+                "last_host_packet_s": t.last_host_packet_s[i],
+                "host_silences": silences,
+                "settings_updates_received": t.settings_updates[i],
+                "watchdog_timeout_ms": t.watchdog_ms[i],
+            })
+        })
+        .collect();
+    let boxes: Vec<_> = t
+        .obstacles
+        .iter()
+        .zip(&t.obstacle_displacements_m)
+        .map(|(p, d)| json!({ "pose": { "x": p.x, "y": p.y, "theta": p.theta }, "displacement_m": d }))
+        .collect();
+    let contacts: Vec<_> = t
+        .collision_log
+        .iter()
+        .map(|(at, a, b)| json!({ "at_s": at, "robots": [a, b] }))
+        .collect();
+    let walls: Vec<_> = t
+        .wall_contact_log
+        .iter()
+        .map(|(at, id)| json!({ "at_s": at, "robot": id }))
+        .collect();
+    let doc = json!({
+        "time_s": t.now.as_secs_f64(),
+        "robots": robots,
+        "boxes": boxes,
+        "robot_contacts": contacts,
+        "wall_contacts": walls,
+    });
+    let tmp = path.with_extension("json.part");
+    std::fs::write(&tmp, serde_json::to_vec_pretty(&doc)?)
+        .with_context(|| format!("--truth {}: cannot write", path.display()))?;
+    std::fs::rename(&tmp, path)
+        .with_context(|| format!("--truth {}: cannot write", path.display()))?;
     Ok(())
 }
