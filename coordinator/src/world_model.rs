@@ -90,6 +90,8 @@ const LOST_FLOOR_RAD: f64 = 15.0 * PI / 180.0;
 /// While lost, a tape seen within this of the estimate is taken as the one the robot is beside.
 pub const RELOCATE_M: f64 = 0.08;
 /// `LineState::flags` bits: no spot sees the line; line following is on.
+/// A robot whose heading is this far or more from a tape's crosses it rather than drives along.
+const CROSSING_RAD: f64 = 45.0 * PI / 180.0;
 const LINE_LOST: u8 = 1;
 const LINE_FOLLOWING: u8 = 2;
 
@@ -153,6 +155,8 @@ struct Estimate {
     no_tape_m: f64,
     /// Travel with tape under the sensor where the model has none.
     stray_tape_m: f64,
+    /// Whether the line sensor saw tape at the previous update.
+    saw_tape: bool,
     /// Set while the robot is lost.
     lost: Option<Lost>,
     stats: LocalisationStats,
@@ -173,6 +177,7 @@ impl Default for Estimate {
             )),
             no_tape_m: 0.0,
             stray_tape_m: 0.0,
+            saw_tape: false,
             lost: None,
             stats: LocalisationStats::default(),
         }
@@ -471,6 +476,7 @@ impl WorldModel {
                 transition = Some(Transition::Lost(why));
             }
         }
+        e.saw_tape = sees_tape;
         let uncertainty = sigmas(&e.cov);
         e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
         let localisation = if e.lost.is_some() {
@@ -542,7 +548,16 @@ impl WorldModel {
             } else {
                 0.0
             };
-            if e.stray_tape_m > CONTRADICTION_M {
+            // Crossing a tape, the sensor sees it for no more than its width, never the 25 mm
+            // the rule below waits for; but the moment it comes onto a tape is as good a fix
+            // across that tape.
+            let crosses = far
+                && !e.saw_tape
+                && self
+                    .track
+                    .nearest(seen)
+                    .is_some_and(|n| n.tangent.dot(&heading).abs() < CROSSING_RAD.cos());
+            if e.stray_tape_m > CONTRADICTION_M || crosses {
                 // The tape the sensor follows is evidence of where the robot is: when it can be
                 // only one tape near the estimate, the estimate moves across onto it (a pusher
                 // whose wheels slipped under the load, backing up onto the track) and the robot
@@ -1142,6 +1157,36 @@ mod tests {
         let stats = d.model.localisation_stats(d.at);
         assert_eq!(stats[0].1.lost_episodes, 1);
         assert!(stats[0].1.lost_time > std::time::Duration::ZERO);
+    }
+
+    #[test]
+    fn a_robot_backing_across_a_tape_is_fixed_across_it_when_it_comes_onto_it() {
+        let world = presets::grid(4, 4, 1);
+        let north = std::f64::consts::FRAC_PI_2;
+        let mut d = Drive::new(
+            world.track.clone(),
+            Pose {
+                x: 0.3,
+                y: 0.2 - LINE_SENSOR_AHEAD_M,
+                theta: north,
+            },
+        );
+        // Pushing: the wheels turn half as far again as the body goes, 60 mm off the tape.
+        for _ in 0..30 {
+            d.go(0.002, 0.0, 0.5, 0.0);
+        }
+        let off = d.error_m();
+        assert!(off > 0.025, "the odometry is {off} m off");
+        // Backing straight down until the sensor is on the tape again.
+        let mut steps = 0;
+        while d.view().state.line.flags & LINE_LOST != 0 && steps < 100 {
+            d.go(-0.002, 0.0, 0.0, 0.0);
+            steps += 1;
+        }
+        assert!(steps < 100, "never came onto the tape");
+        let across = (d.view().pose.y - d.truth.y).abs();
+        assert!(across < 0.004, "still {across} m off across the tape (was {off})");
+        assert_eq!(d.view().localisation, Localisation::Tracking, "not lost: fixed");
     }
 
     struct TrackLoopLen;

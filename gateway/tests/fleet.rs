@@ -276,7 +276,19 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
     let sim = Sim::start("oval", &dir);
     let fleet = format!("kill{}", std::process::id());
     let listen = format!("tcp/127.0.0.1:{}", free_port());
-    let run = ["--behaviour", "line_follow", "--world", "oval", "--param", "laps=2"];
+    // The host's own setting, which the robot must get again when it is adopted again: a
+    // watchdog of 400 ms instead of the firmware's 500 (wheels braked from 0.15 m/s take about
+    // 0.12 s to stand, and the stop must come within 0.6 s of the last packet).
+    let run = [
+        "--behaviour",
+        "line_follow",
+        "--world",
+        "oval",
+        "--param",
+        "laps=2",
+        "--setting",
+        "watchdog.timeout_ms=400",
+    ];
     let coordinator = coordinator(&fleet, &listen, &config, &dir, &run);
     let _a = gateway("a", &fleet, sim.address(1), &listen, &config, &dir);
     let b = gateway("b", &fleet, sim.address(2), &listen, &config, &dir);
@@ -352,6 +364,13 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
         stopped - last
     );
     assert_eq!(contacts(&truth), 0, "contacts in the ground truth: {truth}");
+    // The host's setting reached both robots, and robot 2 again once adopted again.
+    for (id, writes) in [(1, 1), (2, 2)] {
+        let r = robot(&truth, id);
+        assert_eq!(r["watchdog_timeout_ms"], 400, "robot {id}: {r}");
+        let got = r["settings_updates_received"].as_u64().expect("a count");
+        assert_eq!(got, writes, "robot {id}: settings writes received");
+    }
     eprintln!(
         "lost after {noticed_ms} ms; wheels stopped {:.3} s after the last packet; verdict: {}",
         stopped - last,
