@@ -44,6 +44,10 @@ const APPROACH_BELOW: f64 = 0.055;
 /// that the second can turn into its slot beside the first with room for a few millimetres of
 /// pose error, while each still covers 12 mm of a 40 mm box.
 const SLOT_OFFSET: f64 = 0.024;
+/// The gap between the finder's front and the box when the finder first reports it at the
+/// shortest reach (15 mm): the reach less half a creep between IR samples, less the report's
+/// way to the host (measured in the simulator: 10 mm).
+const SIGHTED_GAP: f64 = 0.010;
 /// A follower stops when the robot ahead is this close (sensor to sensor) and goes on past the
 /// second figure.
 const STOP_GAP: f64 = 0.12;
@@ -135,6 +139,8 @@ pub struct CooperativePush {
     phase_since: Duration,
     finder: Option<u16>,
     site: Option<Site>,
+    /// The finder's pose when it first saw the box at the shortest reach.
+    sighted: Option<Pose>,
     pushes: u32,
     push_started: Duration,
     push_time: Option<Duration>,
@@ -170,6 +176,7 @@ impl CooperativePush {
             phase_since: Duration::ZERO,
             finder: None,
             site: None,
+            sighted: None,
             pushes: 0,
             push_started: Duration::ZERO,
             push_time: None,
@@ -217,16 +224,17 @@ impl CooperativePush {
 
     /// Where the box must be, seen from the finder standing behind it.
     fn locate(&self, finder: &RobotView) -> Site {
-        let p = finder.pose;
-        let heading = Vector2::new(p.theta.cos(), p.theta.sin());
-        // Found creeping at the first level-1 sighting (reach 15 mm), reported at most a
-        // snapshot period (3 mm of creep) late and then braked from creeping speed: measured,
-        // it stops about 7 mm short.
-        let gap = match finder.state.proximity.front_obstacle {
-            1 => 0.007,
-            2 => 0.022,
-            _ => 0.03,
+        // From where the finder first saw the box at the shortest reach, not from where it
+        // stopped: how far it crept on depends on when the sighting reached the host and on
+        // the IR sampling's phase, a few millimetres that decide whether each pusher still
+        // covers the box's corner.
+        let (p, gap) = match (self.sighted, finder.state.proximity.front_obstacle) {
+            (Some(p), _) => (p, SIGHTED_GAP),
+            (None, 1) => (finder.pose, 0.007),
+            (None, 2) => (finder.pose, 0.022),
+            (None, _) => (finder.pose, 0.03),
         };
+        let heading = Vector2::new(p.theta.cos(), p.theta.sin());
         let along = heading;
         let centre = Point2::new(p.x, p.y) + along * (HALF_LEN + gap + self.box_half);
         // Pushed to the robot's left: on a counter-clockwise loop, into the loop's middle.
@@ -577,6 +585,7 @@ impl CooperativePush {
             _ => return Vec::new(),
         }
         self.finder = Some(robot);
+        self.sighted = Some(view.pose);
         self.enter(Phase::Gather, world);
         vec![Intent::FollowLine { robot, speed: None }]
     }

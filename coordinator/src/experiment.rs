@@ -105,7 +105,11 @@ impl std::str::FromStr for SettingWrite {
         let bad = |e: &dyn std::fmt::Display| format!("{path} is a {}: {value:?}: {e}", ty.name);
         macro_rules! number {
             ($t:ty) => {
-                value.parse::<$t>().map_err(|e| bad(&e))?.to_le_bytes().to_vec()
+                value
+                    .parse::<$t>()
+                    .map_err(|e| bad(&e))?
+                    .to_le_bytes()
+                    .to_vec()
             };
         }
         let bytes = match ty.name {
@@ -120,7 +124,11 @@ impl std::str::FromStr for SettingWrite {
             other if ty.fields.is_empty() && ty.array.is_none() => {
                 return Err(format!("{path} is a {other}, which --setting cannot write"))
             }
-            _ => return Err(format!("{path} is a group of settings: name one of its fields")),
+            _ => {
+                return Err(format!(
+                    "{path} is a group of settings: name one of its fields"
+                ))
+            }
         };
         Ok(SettingWrite {
             path: path.to_string(),

@@ -51,7 +51,9 @@ enum Load {
 async fn robots(load: Load) -> Vec<String> {
     let mut addrs = Vec::new();
     for k in 0..ROBOTS {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("a port");
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .expect("a port");
         addrs.push(format!("tcp://{}", listener.local_addr().expect("bound")));
         tokio::spawn(async move {
             let (mut sock, _) = listener.accept().await.expect("a client");
@@ -70,7 +72,8 @@ async fn robots(load: Load) -> Vec<String> {
                 Load::Paced => {
                     let period = Duration::from_nanos(1_000_000_000 / RATE_HZ);
                     // Robots start spread over one period, as real ones do.
-                    let start = tokio::time::Instant::now() + period.mul_f64(k as f64 / ROBOTS as f64);
+                    let start =
+                        tokio::time::Instant::now() + period.mul_f64(k as f64 / ROBOTS as f64);
                     let mut tick = tokio::time::interval_at(start, period);
                     let frames = (PACED_FOR.as_secs_f64() * RATE_HZ as f64) as u32;
                     for seq in 0..frames {
@@ -116,7 +119,11 @@ impl Delivered {
 }
 
 /// Collects `expected` frames' send instants from `rx`, at most `limit`.
-async fn collect(mut rx: mpsc::UnboundedReceiver<(u64, u64)>, expected: usize, limit: Duration) -> Delivered {
+async fn collect(
+    mut rx: mpsc::UnboundedReceiver<(u64, u64)>,
+    expected: usize,
+    limit: Duration,
+) -> Delivered {
     let mut latencies = Vec::with_capacity(expected);
     let mut first = None;
     let mut last = Instant::now();

@@ -362,7 +362,11 @@ pub fn truth(sim: &Simulation) -> Truth {
             .iter()
             .map(|r| r.wheel_speeds_mps(sim.spec()))
             .collect(),
-        last_host_packet_s: sim.robots().iter().map(|r| r.last_host_packet_s()).collect(),
+        last_host_packet_s: sim
+            .robots()
+            .iter()
+            .map(|r| r.last_host_packet_s())
+            .collect(),
         host_silences: sim
             .robots()
             .iter()

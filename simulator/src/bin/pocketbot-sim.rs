@@ -139,8 +139,7 @@ async fn main() -> Result<()> {
     for (i, k) in kicks {
         handle.displace_at(k.at, i, k.dx_m, k.dy_m, k.dtheta_rad);
     }
-    let mut terminate =
-        tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut written: Option<std::time::Instant> = None;
     loop {
         let t = handle.truth().await.context("simulation stopped")?;
