@@ -69,6 +69,10 @@ pub struct RobotView {
     pub uncertainty: PoseUncertainty,
     /// Whether the pose is trusted.
     pub localisation: Localisation,
+    /// The pose in the first state report whose front IR saw something at the weakest power
+    /// (within about 15 mm), while it still does. Pose and reading come from one report, so
+    /// where an obstacle is follows from it whatever the link's latency.
+    pub front_close_at: Option<Pose>,
 }
 
 /// A place on the tape: which track edge, how far along it, how far beside it.

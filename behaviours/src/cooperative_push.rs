@@ -44,10 +44,11 @@ const APPROACH_BELOW: f64 = 0.055;
 /// that the second can turn into its slot beside the first with room for a few millimetres of
 /// pose error, while each still covers 12 mm of a 40 mm box.
 const SLOT_OFFSET: f64 = 0.024;
-/// The gap between the finder's front and the box when the finder first reports it at the
-/// shortest reach (15 mm): the reach less half a creep between IR samples, less the report's
-/// way to the host (measured in the simulator: 10 mm).
-const SIGHTED_GAP: f64 = 0.010;
+/// The gap between the finder's front and the box in its first state report that sees the box at
+/// the shortest reach (15 mm): the reach less the creep between the IR's sample and the report
+/// (measured in the simulator: 12.7 mm). Pose and reading come from one report, so the link's
+/// latency does not enter.
+const SIGHTED_GAP: f64 = 0.0127;
 /// A follower stops when the robot ahead is this close (sensor to sensor) and goes on past the
 /// second figure.
 const STOP_GAP: f64 = 0.12;
@@ -224,10 +225,10 @@ impl CooperativePush {
 
     /// Where the box must be, seen from the finder standing behind it.
     fn locate(&self, finder: &RobotView) -> Site {
-        // From where the finder first saw the box at the shortest reach, not from where it
-        // stopped: how far it crept on depends on when the sighting reached the host and on
-        // the IR sampling's phase, a few millimetres that decide whether each pusher still
-        // covers the box's corner.
+        // From where the finder first reported the box at the shortest reach, not from where it
+        // stopped or where the model had it when the sighting arrived: both depend on the
+        // link's latency, a few millimetres that decide whether each pusher still covers the
+        // box's corner.
         let (p, gap) = match (self.sighted, finder.state.proximity.front_obstacle) {
             (Some(p), _) => (p, SIGHTED_GAP),
             (None, 1) => (finder.pose, 0.007),
@@ -402,6 +403,7 @@ impl CooperativePush {
                         return self.fail("the robot that found the box is gone".into());
                     };
                     let site = self.locate(finder);
+                    tracing::debug!(x = site.centre.x, y = site.centre.y, "box located");
                     self.site = Some(site);
                     let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
                     let id = finder.id;
@@ -585,7 +587,7 @@ impl CooperativePush {
             _ => return Vec::new(),
         }
         self.finder = Some(robot);
-        self.sighted = Some(view.pose);
+        self.sighted = Some(view.front_close_at.unwrap_or(view.pose));
         self.enter(Phase::Gather, world);
         vec![Intent::FollowLine { robot, speed: None }]
     }

@@ -508,6 +508,11 @@ impl WorldModel {
             view.pose = pose;
             view.odometry = u.pose;
             view.state = u.state;
+            view.front_close_at = if u.state.proximity.front_obstacle == 1 {
+                view.front_close_at.or(Some(pose))
+            } else {
+                None
+            };
             view.pending_moves = usize::from(u.state.locomotion.queue_len);
             view.on_track = on_track;
             view.uncertainty = uncertainty;
