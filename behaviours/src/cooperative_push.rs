@@ -59,6 +59,10 @@ const REJOIN_GAP: f64 = 0.16;
 /// (a report's latency at that speed, then braking).
 const BACK_MPS: f32 = 0.03;
 const BACK_OVERSHOOT: f64 = 0.002;
+/// A tape report counts only once the robot has backed this far: after a push that moved the box
+/// clear, the sensor stands well beyond the tape, and over a wall-clock link a report of the
+/// push's own crossing can arrive late, with the robot still beside the other pusher.
+const MIN_BACK_M: f64 = 0.02;
 /// Line sensor ahead of the robot's centre, metres.
 const SENSOR_AHEAD: f64 = world::robot::LINE_SENSOR_AHEAD_M;
 /// Following speed with an unknown obstacle close ahead.
@@ -123,6 +127,8 @@ struct Bot {
     push_odometer_m: f64,
     /// Backing up towards the tape after the push, since then.
     backing: Option<Duration>,
+    /// The odometer's reading when backing began.
+    backing_odometer_m: f64,
     /// The line sensor crossed the tape during the push: the box gave way.
     crossed_tape: bool,
 }
@@ -286,11 +292,18 @@ impl CooperativePush {
             return Vec::new();
         };
         bot.backing = Some(Duration::ZERO);
+        bot.backing_odometer_m = self.odometer.distance_m(id);
         vec![Intent::WheelSpeeds {
             robot: id,
             left: -BACK_MPS,
             right: -BACK_MPS,
         }]
+    }
+
+    /// How far the robot has backed since it began to, by its encoders.
+    fn backed_m(&self, id: u16) -> f64 {
+        let from = self.bots.get(&id).map_or(0.0, |b| b.backing_odometer_m);
+        self.odometer.distance_m(id) - from
     }
 
     /// The sensor (16 mm ahead of the centre) has just crossed the tape backwards: stop, bring
@@ -638,7 +651,11 @@ impl Behaviour for CooperativePush {
                 }
             }
             Event::LineFound if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) => {
-                self.on_tape(robot, world)
+                if self.backed_m(robot) >= MIN_BACK_M {
+                    self.on_tape(robot, world)
+                } else {
+                    Vec::new()
+                }
             }
             Event::LineFound if self.phase == Phase::Push => {
                 if let Some(b) = self.bots.get_mut(&robot) {

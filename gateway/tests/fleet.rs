@@ -82,6 +82,15 @@ impl Drop for Proc {
     }
 }
 
+/// Each test runs a simulator, two or three gateways and a coordinator against the wall clock:
+/// run side by side on two cores they starve each other's timing, so they take turns.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn take_turn() -> std::sync::MutexGuard<'static, ()> {
+    // A test that failed while holding the turn has said so; the next may still run.
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// A scratch directory for one test's logs, reports and configuration.
 fn scratch(test: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("pf-fleet-{test}-{}", std::process::id()));
@@ -257,6 +266,7 @@ fn contacts(truth: &Value) -> usize {
 
 #[test]
 fn cooperative_push_runs_through_two_gateways_and_the_box_moves() {
+    let _turn = take_turn();
     let dir = scratch("push");
     let config = zenoh_config(&dir);
     // The robots live at half the wall clock's pace: where the finder places the box depends on
@@ -307,6 +317,7 @@ fn unix_ms() -> u64 {
 
 #[test]
 fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
+    let _turn = take_turn();
     let dir = scratch("kill");
     let config = zenoh_config(&dir);
     let sim = Sim::start("oval", 1.0, &dir);

@@ -46,6 +46,13 @@ pub struct ZenohOptions {
     pub config_file: Option<std::path::PathBuf>,
 }
 
+/// A connect attempt not finished by then is given up, and the robot actor tries again later: a
+/// liveliness query or a declaration can wait on a peer that has just died.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// How long a liveliness query waits for the gateways' answers.
+const QUERY_TIMEOUT: Duration = Duration::from_secs(1);
+
 fn unavailable(what: impl std::fmt::Display) -> LinkError {
     LinkError::Unavailable("zenoh", what.to_string())
 }
@@ -210,6 +217,7 @@ async fn query_alive(session: &Session, keys: &Keys) -> Result<Vec<u16>, LinkErr
     let replies = session
         .liveliness()
         .get(keys.robots_alive())
+        .timeout(QUERY_TIMEOUT)
         .await
         .map_err(unavailable)?;
     let mut ids = Vec::new();
@@ -248,7 +256,22 @@ impl Connector for ZenohConnector {
 
     fn connect(&self) -> BoxFuture<'static, Result<Link, LinkError>> {
         let this = self.clone();
-        on_zenoh(this.open()).boxed()
+        let peer = self.peer();
+        // Timed on the caller's runtime, so a stalled zenoh runtime cannot hold the actor.
+        async move {
+            tokio::time::timeout(CONNECT_TIMEOUT, on_zenoh(this.open()))
+                .await
+                .unwrap_or_else(|_| {
+                    Err(LinkError::Connect {
+                        peer,
+                        source: std::io::Error::new(
+                            std::io::ErrorKind::TimedOut,
+                            format!("no answer from the fleet within {CONNECT_TIMEOUT:?}"),
+                        ),
+                    })
+                })
+        }
+        .boxed()
     }
 }
 
