@@ -230,11 +230,10 @@ impl SimRobot {
             return;
         };
         match self.silences.last_mut().filter(|s| s.resumed_s.is_none()) {
-            Some(s) => {
-                if s.wheels_stopped_s.is_none() {
-                    s.wheels_stopped_s = self.still_since_ns.map(seconds);
-                }
+            Some(s) if s.wheels_stopped_s.is_none() => {
+                s.wheels_stopped_s = self.still_since_ns.map(seconds);
             }
+            Some(_) => {}
             None if now_ns - last >= SILENCE_NS => self.silences.push(HostSilence {
                 last_packet_s: seconds(last),
                 resumed_s: None,
