@@ -91,6 +91,9 @@ pub struct Supervisor {
     planned: std::collections::HashMap<u16, (Pose, Instant)>,
     /// Lost robots being re-localised; every intent for them is held meanwhile.
     relocalising: std::collections::HashMap<u16, Relocaliser>,
+    /// Robots whose link came back but whose first state report has not: the behaviour hears
+    /// of the link only with it, as until then the robot's intents are held as lost.
+    reconnected: std::collections::HashMap<u16, RobotEvent>,
 }
 
 /// The tag of the re-localisation routine's moves (the behaviour never hears of them).
@@ -136,6 +139,7 @@ impl Supervisor {
             started: false,
             planned: Default::default(),
             relocalising: Default::default(),
+            reconnected: Default::default(),
         }
     }
 
@@ -508,6 +512,9 @@ impl Handler<StateUpdated> for Supervisor {
     type Result = ();
     fn handle(&mut self, u: StateUpdated, ctx: &mut Context<Self>) {
         let transition = self.model.apply(&u);
+        if let Some(e) = self.reconnected.remove(&u.robot_id) {
+            self.tell_behaviour(e, ctx);
+        }
         // Robots are only stopped and re-localised while a behaviour runs them.
         if !self.started || self.done.is_none() {
             return;
@@ -541,7 +548,18 @@ impl Handler<RobotEvent> for Supervisor {
                 self.note_link(e.robot_id, "lost");
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
             }
-            RobotEventKind::Connected(_) => self.note_link(e.robot_id, "connected"),
+            RobotEventKind::Connected(_) => {
+                self.note_link(e.robot_id, "connected");
+                if self
+                    .model
+                    .robots()
+                    .get(&e.robot_id)
+                    .is_some_and(|v| !v.connected)
+                {
+                    self.reconnected.insert(e.robot_id, e);
+                    return;
+                }
+            }
             _ => {}
         }
         // While a robot is re-localised its moves are the routine's (or ones the stop dropped):
@@ -557,6 +575,12 @@ impl Handler<RobotEvent> for Supervisor {
                 _ => {}
             }
         }
+        self.tell_behaviour(e, ctx);
+    }
+}
+
+impl Supervisor {
+    fn tell_behaviour(&mut self, e: RobotEvent, ctx: &mut Context<Self>) {
         if let Some(b) = &self.behaviour {
             let msg = FromRobot {
                 robot: e.robot_id,
