@@ -23,8 +23,9 @@
 //! The first solution found is returned; LaCAM*'s further anytime refinement towards optimal
 //! cost is not done.
 
+use std::cmp::Reverse;
 use std::collections::HashMap;
-use std::rc::Rc;
+use std::hash::{BuildHasherDefault, Hasher};
 use std::time::{Duration, Instant};
 
 use rand::seq::SliceRandom;
@@ -33,11 +34,11 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::error::MapfError;
 use crate::graph::Graph;
-use crate::pibt::{check_vertices, initial_priorities, update_priorities, Pibt, NONE};
+use crate::pibt::{check_vertices, Pibt, NONE};
 use crate::plan::Solution;
 
-/// Search settings. The default has seed 0 and no budget.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+/// Search settings. The default has seed 0, no budget and PIBT's swap operation on.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Options {
     /// Seeds the tie-breaking of PIBT and the order of low-level children: equal seeds give
     /// equal plans.
@@ -47,6 +48,20 @@ pub struct Options {
     /// Budget of low-level expansions (configuration generator calls); past it the search stops
     /// with [`MapfError::Timeout`]. Deterministic, unlike the time limit.
     pub max_expansions: Option<u64>,
+    /// Whether PIBT uses the swap operation (see [`crate::pibt`]); without it, agents meeting
+    /// head-on in narrow corridors are left to the search.
+    pub swap: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            seed: 0,
+            time_limit: None,
+            max_expansions: None,
+            swap: true,
+        }
+    }
 }
 
 /// What a search did.
@@ -88,10 +103,11 @@ pub fn solve_with_stats(
 /// Chance of resuming the start instead of a revisited configuration.
 const RESTART_PROBABILITY: f64 = 0.01;
 
+/// A configuration of the search; the configuration itself is in `Search::configs`.
 struct HighNode {
-    config: Rc<[u32]>,
     parent: u32,
-    priorities: Vec<f32>,
+    /// The next node whose configuration has the same hash, or [`NONE`].
+    same_hash: u32,
     /// Agents by decreasing priority: the order of PIBT and of the constraint tree's levels.
     order: Vec<u32>,
     /// The constraint tree; nodes are appended as they are created, and since the tree is
@@ -116,19 +132,46 @@ const ROOT_CONSTRAINT: LowNode = LowNode {
 };
 
 impl HighNode {
-    fn new(config: Rc<[u32]>, parent: u32, priorities: Vec<f32>) -> Self {
-        let mut order: Vec<u32> = (0..config.len() as u32).collect();
-        // Stable, so equal priorities keep index order and runs are reproducible.
-        order.sort_by(|&a, &b| priorities[b as usize].total_cmp(&priorities[a as usize]));
+    fn new(parent: u32, order: Vec<u32>) -> Self {
         Self {
-            config,
             parent,
-            priorities,
+            same_hash: NONE,
             order,
             tree: vec![ROOT_CONSTRAINT],
             head: 0,
         }
     }
+}
+
+/// A hasher for keys that are hashes already ([`hash_config`]'s).
+#[derive(Default)]
+struct Prehashed(u64);
+
+impl Hasher for Prehashed {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = self.0.rotate_left(8) ^ u64::from(b);
+        }
+    }
+
+    fn write_u64(&mut self, hash: u64) {
+        self.0 = hash;
+    }
+}
+
+/// A multiply-rotate hash (as in rustc's FxHash) with a SplitMix64 finish, so that the low bits
+/// the table indexes by depend on every agent. SipHash, the default, cost more than a PIBT step.
+fn hash_config(config: &[u32]) -> u64 {
+    let h = config.iter().fold(0u64, |h, &v| {
+        (h.rotate_left(5) ^ u64::from(v)).wrapping_mul(0x517c_c1b7_2722_0a95)
+    });
+    let h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    let h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^ (h >> 31)
 }
 
 struct Search<'g, 'a> {
@@ -139,7 +182,12 @@ struct Search<'g, 'a> {
     pibt: Pibt<'g>,
     rng: ChaCha8Rng,
     nodes: Vec<HighNode>,
-    explored: HashMap<Rc<[u32]>, u32>,
+    /// Configurations of `nodes`, back to back, one allocation for all.
+    configs: Vec<u32>,
+    /// Each configuration hash's most recent node; older ones are chained by `same_hash`.
+    explored: HashMap<u64, u32, BuildHasherDefault<Prehashed>>,
+    /// Agents by decreasing distance from start to goal, then index: LaCAM's tie-breaking.
+    by_distance: Vec<u32>,
     open: Vec<u32>,
 }
 
@@ -164,7 +212,7 @@ impl<'g, 'a> Search<'g, 'a> {
                 vertex,
             }
         })?;
-        let pibt = Pibt::new(graph, goals, options.seed)?;
+        let pibt = Pibt::new(graph, goals, options.seed)?.with_swap(options.swap);
         // A goal in another component would make the search exhaust the whole configuration
         // space before saying what a BFS table says at once.
         if let Some(agent) =
@@ -176,12 +224,11 @@ impl<'g, 'a> Search<'g, 'a> {
                 goal: goals[agent],
             });
         }
-        let config: Rc<[u32]> = starts.into();
-        let root = HighNode::new(
-            config.clone(),
-            NONE,
-            initial_priorities(graph, starts, goals),
-        );
+        let mut by_distance: Vec<u32> = (0..starts.len() as u32).collect();
+        // Stable, so equal distances keep index order and runs are reproducible.
+        by_distance
+            .sort_by_key(|&a| Reverse(graph.distance(starts[a as usize], goals[a as usize])));
+        let root = HighNode::new(NONE, by_distance.clone());
         Ok(Self {
             graph,
             goals,
@@ -191,14 +238,16 @@ impl<'g, 'a> Search<'g, 'a> {
             // A different stream from PIBT's, so that the two uses of the seed are independent.
             rng: ChaCha8Rng::seed_from_u64(options.seed ^ 0x9e37_79b9_7f4a_7c15),
             nodes: vec![root],
-            explored: HashMap::from([(config, 0)]),
+            configs: starts.to_vec(),
+            explored: [(hash_config(starts), 0)].into_iter().collect(),
+            by_distance,
             open: vec![0],
         })
     }
 
     fn run(mut self, stats: &mut SearchStats) -> Result<Solution, MapfError> {
         let n = self.goals.len();
-        if *self.nodes[0].config == *self.goals {
+        if self.configs == self.goals {
             return Ok(self.plan_to(0));
         }
         let mut constraints = Vec::new();
@@ -208,10 +257,10 @@ impl<'g, 'a> Search<'g, 'a> {
             stats.configurations = self.nodes.len();
             self.check_budget(stats.expansions)?;
             let node = &mut self.nodes[top as usize];
+            let config = &self.configs[top as usize * n..][..n];
             let Some(&low) = node.tree.get(node.head) else {
                 // Every constraint of this node has been tried: nothing more to learn from it.
                 self.open.pop();
-                node.priorities = Vec::new();
                 node.order = Vec::new();
                 node.tree = Vec::new();
                 node.head = 0;
@@ -223,7 +272,7 @@ impl<'g, 'a> Search<'g, 'a> {
 
             if (low.depth as usize) < n {
                 let agent = node.order[low.depth as usize];
-                let v = node.config[agent as usize];
+                let v = config[agent as usize];
                 children.clear();
                 children.extend_from_slice(self.graph.neighbors(v));
                 children.push(v);
@@ -244,11 +293,16 @@ impl<'g, 'a> Search<'g, 'a> {
             }
             if !self
                 .pibt
-                .generate(&node.config, &node.order, &constraints, &mut next)
+                .generate(config, &node.order, &constraints, &mut next)
             {
                 continue;
             }
-            if let Some(&seen) = self.explored.get(next.as_slice()) {
+            let slot = self.explored.entry(hash_config(&next)).or_insert(NONE);
+            let mut seen = *slot;
+            while seen != NONE && self.configs[seen as usize * n..][..n] != *next {
+                seen = self.nodes[seen as usize].same_hash;
+            }
+            if seen != NONE {
                 // Revisiting sends the search back to that configuration, as in LaCAM: its
                 // remaining constraints are the way out of whatever loop led here. Now and then
                 // the start is resumed instead (LaCAM3's random insertion): the depth-first
@@ -262,13 +316,20 @@ impl<'g, 'a> Search<'g, 'a> {
                 self.open.push(resume);
                 continue;
             }
-            let mut priorities = node.priorities.clone();
-            update_priorities(&mut priorities, &next, self.goals);
-            let config: Rc<[u32]> = next.as_slice().into();
+            // PIBT's priorities, without keeping them: an agent away from its goal gains one, an
+            // agent on it drops below all others, to its tie-breaking rank. Those away thus keep
+            // their order, and those on their goals follow in tie-breaking order, so the order
+            // is built in linear time instead of sorted.
+            let at_goal = |&a: &u32| next[a as usize] == self.goals[a as usize];
+            let mut order = Vec::with_capacity(n);
+            let parent_order = &self.nodes[top as usize].order;
+            order.extend(parent_order.iter().filter(|a| !at_goal(a)));
+            order.extend(self.by_distance.iter().filter(|a| at_goal(a)));
             let id = self.nodes.len() as u32;
-            self.nodes
-                .push(HighNode::new(config.clone(), top, priorities));
-            self.explored.insert(config, id);
+            let mut child = HighNode::new(top, order);
+            child.same_hash = std::mem::replace(slot, id);
+            self.nodes.push(child);
+            self.configs.extend_from_slice(&next);
             self.open.push(id);
             if next == self.goals {
                 stats.configurations = self.nodes.len();
@@ -293,11 +354,11 @@ impl<'g, 'a> Search<'g, 'a> {
     }
 
     fn plan_to(&self, mut id: u32) -> Solution {
+        let n = self.goals.len();
         let mut configs = Vec::new();
         while id != NONE {
-            let node = &self.nodes[id as usize];
-            configs.push(node.config.to_vec());
-            id = node.parent;
+            configs.push(self.configs[id as usize * n..][..n].to_vec());
+            id = self.nodes[id as usize].parent;
         }
         configs.reverse();
         Solution::from_configurations(&configs)

@@ -10,13 +10,17 @@
 //!   list, a petgraph graph or as a grid, with breadth-first distance tables to goals computed on
 //!   first use and cached per goal.
 //! - [`pibt`]: *Priority Inheritance with Backtracking* (Okumura et al., IJCAI 2019; AIJ 2022),
-//!   which plans one synchronous step for all agents in time linear in their number. On its own
-//!   it is fast but incomplete: agents can chase each other round in circles.
+//!   which plans one synchronous step for all agents in time linear in their number, with the
+//!   swap operation of LaCAM3 so that agents meeting head-on in a corridor back out to let each
+//!   other pass. On its own it is fast but incomplete: agents can chase each other round in
+//!   circles.
 //! - [`lacam`]: *LaCAM*, lazy constraints addition search (Okumura, AAAI 2023; LaCAM*, IJCAI
 //!   2023), a depth-first search over joint configurations that uses PIBT to generate successors
 //!   under gradually added constraints. It is complete: it finds a plan whenever one exists and
 //!   otherwise reports [`MapfError::Unsolvable`] after exhausting the reachable configurations,
 //!   unless the caller's budget ends it first with [`MapfError::Timeout`].
+//! - [`movingai`]: the MovingAI benchmark's `.map` and `.scen` files, and random instances on
+//!   their maps.
 //! - [`Solution`] and [`validate`]: the synchronous plan (`paths[agent][step]`, all of one length,
 //!   agents that arrive early wait and may be pushed aside later) and its checker.
 //! - [`Adg`]: the *action dependency graph* of Hönig et al. ("Persistent and Robust Execution of
@@ -54,6 +58,7 @@ pub mod adg;
 pub mod error;
 pub mod graph;
 pub mod lacam;
+pub mod movingai;
 pub mod pibt;
 pub mod plan;
 pub mod scenario;
@@ -61,6 +66,7 @@ pub mod scenario;
 pub use adg::{Action, Adg, AdgError};
 pub use error::MapfError;
 pub use graph::{DistanceTable, Graph, GraphError};
+pub use movingai::{GridMap, MovingAiError};
 pub use pibt::Pibt;
 pub use plan::{validate, Conflict, Solution};
 pub use scenario::Scenario;

@@ -12,9 +12,16 @@
 //! moving round a cycle, each into the vertex the next one leaves): robots executing the plan
 //! through an [`crate::Adg`] wait for a vertex to be vacated before entering it, so a rotation
 //! would never start. Swaps are the two-agent case of the same check.
-
-use rand::{RngCore, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+//!
+//! Two agents meeting head-on in a corridor cannot pass, and plain PIBT lets the stronger one
+//! push the other back only as far as the pusher wants to go. The *swap* operation (Okumura,
+//! "Improving LaCAM for Scalable Eventually Optimal Multi-Agent Pathfinding", IJCAI 2023, and
+//! the authors' LaCAM3 code) handles this: when the two must pass each other and the corridor
+//! behind the agent leads to a junction, the agent takes its candidates in reverse order,
+//! backing away, and *pulls* the other into the vertex it leaves, until both reach the
+//! junction, where one can step aside. Pulling is following, never a swap or rotation: the
+//! pulled agent enters a vertex its owner leaves for another one, and the pull is checked for
+//! closing a cycle like any other move.
 
 use crate::error::MapfError;
 use crate::graph::{DistanceTable, Graph};
@@ -32,7 +39,9 @@ pub struct Pibt<'g> {
     graph: &'g Graph,
     goals: Vec<u32>,
     dist: Vec<&'g DistanceTable>,
-    rng: ChaCha8Rng,
+    /// Tie-breaking state: a draw per candidate, so it must be cheap.
+    tie: SplitMix64,
+    swap: bool,
     /// Agent on each vertex now.
     occupied_now: Vec<u32>,
     /// Agent that has reserved each vertex for the next step.
@@ -49,14 +58,33 @@ pub struct Pibt<'g> {
 #[derive(Clone, Copy, Debug)]
 struct Frame {
     agent: u32,
-    /// Next candidate to try, as an index into `Pibt::candidates`.
+    /// First candidate, as an index into `Pibt::candidates`.
+    start: u32,
+    /// Next candidate to try.
     cursor: u32,
     end: u32,
+    /// Agent to pull into this agent's vertex if it gets its first candidate, or [`NONE`].
+    pull: u32,
+}
+
+/// SplitMix64 (Steele, Lea, Flood, "Fast splittable pseudorandom number generators", 2014):
+/// a few arithmetic operations a draw, against a ChaCha block every sixteen.
+#[derive(Clone, Debug)]
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
 }
 
 impl<'g> Pibt<'g> {
-    /// A planner for agents with these `goals`; `seed` drives the tie-breaking among equally
-    /// good vertices, so equal seeds give equal steps.
+    /// A planner for agents with these `goals`, with the swap operation on; `seed` drives the
+    /// tie-breaking among equally good vertices, so equal seeds give equal steps.
     pub fn new(graph: &'g Graph, goals: &[u32], seed: u64) -> Result<Self, MapfError> {
         check_vertices(graph, goals, |first, second, vertex| {
             MapfError::DuplicateGoal {
@@ -70,7 +98,8 @@ impl<'g> Pibt<'g> {
             graph,
             goals: goals.to_vec(),
             dist: goals.iter().map(|&g| graph.distances(g)).collect(),
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            tie: SplitMix64(seed),
+            swap: true,
             occupied_now: vec![NONE; n],
             occupied_next: vec![NONE; n],
             current: Vec::with_capacity(goals.len()),
@@ -80,6 +109,12 @@ impl<'g> Pibt<'g> {
             stack: Vec::new(),
             order: Vec::with_capacity(goals.len()),
         })
+    }
+
+    /// Turns the swap operation on or off (plain PIBT, with its corridor deadlocks).
+    pub fn with_swap(mut self, swap: bool) -> Self {
+        self.swap = swap;
+        self
     }
 
     /// The goals this planner steers to.
@@ -221,25 +256,137 @@ impl<'g> Pibt<'g> {
     }
 
     /// Pushes the frame of `agent` with its candidates sorted best first: nearer to the goal,
-    /// then unoccupied now (so agents prefer not to push others), then random.
+    /// then unoccupied now (so agents prefer not to push others), then random; or worst first
+    /// when a swap is due.
     fn push_frame(&mut self, agent: u32) {
         let v = self.current[agent as usize];
         let dist = self.dist[agent as usize];
         self.keys.clear();
         for &u in self.graph.neighbors(v).iter().chain(std::iter::once(&v)) {
             let occupied = u64::from(self.occupied_now[u as usize] != NONE && u != v);
-            let tie = u64::from(self.rng.next_u32() >> 1);
+            let tie = self.tie.next() >> 33;
             let key = (u64::from(dist.raw(u)) << 32) | (occupied << 31) | tie;
             self.keys.push((key, u));
         }
         self.keys.sort_unstable_by_key(|&(k, _)| k);
+        let pull = if self.swap {
+            self.swap_partner(agent, self.keys[0].1)
+        } else {
+            NONE
+        };
+        if pull != NONE {
+            self.keys.reverse();
+        }
         let start = self.candidates.len() as u32;
         self.candidates.extend(self.keys.iter().map(|&(_, u)| u));
         self.stack.push(Frame {
             agent,
+            start,
             cursor: start,
             end: self.candidates.len() as u32,
+            pull,
         });
+    }
+
+    /// LaCAM3's `is_swap_required_and_possible`: the agent that `i` should pull along while
+    /// backing away from `best`, its best next vertex, or [`NONE`]. Either the unplanned
+    /// occupant of `best` must get past `i` (head-on in a corridor), or a neighbour of `i` will
+    /// have to, once `i` has moved on to `best`; in both cases only if the corridor behind `i`
+    /// leads to a junction where the two can pass.
+    fn swap_partner(&self, i: u32, best: u32) -> u32 {
+        let v = self.current[i as usize];
+        if best == v {
+            return NONE;
+        }
+        let j = self.occupied_now[best as usize];
+        if j != NONE
+            && self.next[j as usize] == NONE
+            && self.swap_required(i, j, v, best)
+            && self.swap_possible(best, v)
+        {
+            return j;
+        }
+        for &u in self.graph.neighbors(v) {
+            let k = self.occupied_now[u as usize];
+            if k != NONE
+                && u != best
+                && self.swap_required(k, i, v, best)
+                && self.swap_possible(best, v)
+            {
+                return k;
+            }
+        }
+        NONE
+    }
+
+    /// Whether `pusher` on `pusher_at` and `puller` on the adjacent `puller_at` must pass each
+    /// other: walking the pusher forward along the corridor (while that brings it nearer to its
+    /// goal) meets no junction, and at the end the puller wants to go where the pusher is while
+    /// the pusher wants to go on (or is at its goal).
+    fn swap_required(&self, pusher: u32, puller: u32, pusher_at: u32, puller_at: u32) -> bool {
+        let (dp, dq) = (self.dist[pusher as usize], self.dist[puller as usize]);
+        let (mut behind, mut ahead) = (pusher_at, puller_at);
+        // The pusher's distance falls every round, so this ends.
+        while dp.raw(ahead) < dp.raw(behind) {
+            match self.exits(ahead, behind) {
+                (0, _) => break,
+                (1, next) => (behind, ahead) = (ahead, next),
+                _ => return false,
+            }
+        }
+        dq.raw(behind) < dq.raw(ahead) && (dp.raw(behind) == 0 || dp.raw(ahead) < dp.raw(behind))
+    }
+
+    /// Whether the corridor from `from` through `to` and onwards leads to a junction (a vertex
+    /// with two ways on) rather than a dead end.
+    fn swap_possible(&self, from: u32, to: u32) -> bool {
+        let (mut behind, mut ahead) = (from, to);
+        // A walk along a corridor returns to its start only round a cycle; the bound guards
+        // against walking that cycle forever should it avoid `from`.
+        for _ in 0..self.graph.num_vertices() {
+            if ahead == from {
+                return false;
+            }
+            match self.exits(ahead, behind) {
+                (0, _) => return false,
+                (1, next) => (behind, ahead) = (ahead, next),
+                _ => return true,
+            }
+        }
+        false
+    }
+
+    /// Ways on from `v` when coming from `from`, and the last of them: neighbours other than
+    /// `from`, not counting dead ends held by an agent at its goal (it will not make room).
+    fn exits(&self, v: u32, from: u32) -> (u32, u32) {
+        let mut count = 0;
+        let mut last = NONE;
+        for &u in self.graph.neighbors(v) {
+            let a = self.occupied_now[u as usize];
+            let parked = a != NONE && self.goals[a as usize] == u && self.graph.degree(u) == 1;
+            if u != from && !parked {
+                count += 1;
+                last = u;
+            }
+        }
+        (count, last)
+    }
+
+    /// After `frame`'s agent has settled, pulls its swap partner into the vertex it leaves, if
+    /// it got its first candidate, the partner is still unplanned and the vertex still free.
+    fn pull(&mut self, frame: Frame) {
+        let (i, j) = (frame.agent, frame.pull);
+        if j == NONE || self.next[j as usize] != NONE {
+            return;
+        }
+        let v = self.current[i as usize];
+        if self.next[i as usize] == self.candidates[frame.start as usize]
+            && self.occupied_next[v as usize] == NONE
+            && !self.closes_cycle(i, j)
+        {
+            self.occupied_next[v as usize] = j;
+            self.next[j as usize] = v;
+        }
     }
 
     /// PIBT for the chain started by `root`, with an explicit stack so that long chains of
@@ -254,6 +401,7 @@ impl<'g> Pibt<'g> {
         while let Some(frame) = self.stack.last().copied() {
             let i = frame.agent;
             if child_result.take() == Some(true) {
+                self.pull(frame);
                 self.pop_frame(&mut child_result, &mut root_result, true);
                 continue;
             }
@@ -283,7 +431,10 @@ impl<'g> Pibt<'g> {
                 break;
             }
             match outcome {
-                Some(true) => self.pop_frame(&mut child_result, &mut root_result, true),
+                Some(true) => {
+                    self.pull(frame);
+                    self.pop_frame(&mut child_result, &mut root_result, true);
+                }
                 Some(false) => {}
                 None => {
                     // Nowhere to go: stay, taking the vertex back from whoever reserved it
@@ -299,11 +450,9 @@ impl<'g> Pibt<'g> {
     }
 
     fn pop_frame(&mut self, child_result: &mut Option<bool>, root_result: &mut bool, ok: bool) {
-        self.stack.pop();
-        // Frames' candidate ranges are back to back, so this frame's began where the one below
-        // it ends.
-        let start = self.stack.last().map_or(0, |f| f.end);
-        self.candidates.truncate(start as usize);
+        if let Some(frame) = self.stack.pop() {
+            self.candidates.truncate(frame.start as usize);
+        }
         if self.stack.is_empty() {
             *root_result = ok;
         } else {
@@ -404,6 +553,20 @@ mod tests {
         let g = Graph::from_edges(2, [(0, 1)]).unwrap();
         let mut pibt = Pibt::new(&g, &[1, 0], 0).unwrap();
         assert_eq!(pibt.step(&[0, 1], &[1.0, 0.0]).unwrap(), vec![0, 1]);
+    }
+
+    #[test]
+    fn head_on_agent_backs_out_and_pulls_the_other_along() {
+        // Corridor 1-2-3 (dead end at 3) off junction 0, which has two more branches 4 and 5.
+        // Agent 0 on 1 wants 3, agent 1 on 2 wants 0: they must pass at the junction.
+        let g = Graph::from_edges(6, [(0, 1), (1, 2), (2, 3), (0, 4), (0, 5)]).unwrap();
+        for seed in 0..10 {
+            let mut pibt = Pibt::new(&g, &[3, 0], seed).unwrap();
+            assert_eq!(pibt.step(&[1, 2], &[1.0, 0.0]).unwrap(), vec![0, 1]);
+            // Plain PIBT pushes agent 1 into the dead end instead.
+            let mut plain = Pibt::new(&g, &[3, 0], seed).unwrap().with_swap(false);
+            assert_eq!(plain.step(&[1, 2], &[1.0, 0.0]).unwrap(), vec![2, 3]);
+        }
     }
 
     #[test]
