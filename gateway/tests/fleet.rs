@@ -265,7 +265,8 @@ fn contacts(truth: &Value) -> usize {
 }
 
 #[test]
-#[ignore = "wall-clock processes: run by CI's fleet step while the re-adoption stall is open"]
+#[ignore = "about 1 run in 4 fails on the push's known tight turn (a pusher's turn onto the tape \
+            beside the other is held); CI's fleet step runs it and reports without gating"]
 fn cooperative_push_runs_through_two_gateways_and_the_box_moves() {
     let _turn = take_turn();
     let dir = scratch("push");
@@ -316,7 +317,6 @@ fn unix_ms() -> u64 {
 }
 
 #[test]
-#[ignore = "the coordinator sometimes stalls when the killed gateway's robot comes back"]
 fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
     let _turn = take_turn();
     let dir = scratch("kill");
