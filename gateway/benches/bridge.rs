@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use gateway::{Gateway, GatewayConfig};
 use protocol::packets::{Hello, Pong};
 use protocol::Settings;
-use robot_actor::link::zenoh::{on_zenoh, open_session, ZenohOptions};
+use robot_actor::link::zenoh::{on_zenoh, open_session, UpBatch, ZenohOptions};
 use robot_actor::link::LinkEvent;
 use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
@@ -191,8 +191,11 @@ async fn bridged(load: Load, expected: usize, port: u16) -> Delivered {
             .declare_subscriber(key)
             .callback(move |sample| {
                 let got = now_ns();
-                if let Some(sent) = sent_at(&sample.payload().to_bytes()) {
-                    let _ = tx.send((sent, got));
+                let payload = sample.payload().to_bytes();
+                for packet in UpBatch::split(&payload).unwrap_or_default() {
+                    if let Some(sent) = sent_at(packet) {
+                        let _ = tx.send((sent, got));
+                    }
                 }
             })
             .await

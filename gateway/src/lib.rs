@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use protocol::packets::{AnyPacket, HelloRequest, PacketType};
-use robot_actor::link::zenoh::{open_session, FleetSession, Keys, ZenohOptions};
+use robot_actor::link::zenoh::{open_session, FleetSession, Keys, UpBatch, ZenohOptions};
 use robot_actor::link::{Connector, Link, LinkEvent};
 use serde::Serialize;
 use tokio::sync::mpsc;
@@ -253,7 +253,9 @@ impl Bridge {
             s.robot = Some(id);
             s.connected = true;
         });
-        if up.put(hello).await.is_ok() {
+        let mut batch = UpBatch::default();
+        batch.push(&hello);
+        if up.put(batch.take()).await.is_ok() {
             with_stats(&self.stats, self.slot, |s| s.packets_up += 1);
         }
         // Pings are timed by their type code alone: the gateway decodes nothing else.
@@ -262,19 +264,40 @@ impl Bridge {
             tokio::select! {
                 event = link.rx.recv() => match event {
                     Some(LinkEvent::Packet(p)) => {
-                        let pong = packet_type(&p) == Some(PacketType::Pong as u8);
-                        let rtt = ping_sent.take_if(|_| pong).map(|t| t.elapsed());
-                        if up.put(p).await.is_err() {
+                        // Whatever the link has already delivered goes in the same sample.
+                        let mut next = Some(p);
+                        let mut closed = None;
+                        let mut rtt = None;
+                        while let Some(p) = next.take() {
+                            if packet_type(&p) == Some(PacketType::Pong as u8) {
+                                rtt = ping_sent.take().map(|t| t.elapsed()).or(rtt);
+                            }
+                            batch.push(&p);
+                            if batch.is_full() {
+                                break;
+                            }
+                            match link.rx.try_recv() {
+                                Ok(LinkEvent::Packet(q)) => next = Some(q),
+                                Ok(LinkEvent::Closed(why)) => closed = Some(why),
+                                Err(_) => {}
+                            }
+                        }
+                        let packets = batch.packets() as u64;
+                        if up.put(batch.take()).await.is_err() {
                             break;
                         }
                         with_stats(&self.stats, self.slot, |s| {
-                            s.packets_up += 1;
+                            s.packets_up += packets;
                             if let Some(rtt) = rtt {
                                 let ms = rtt.as_secs_f64() * 1e3;
                                 s.rtt_ms = Some(ms);
                                 s.rtt_max_ms = Some(s.rtt_max_ms.map_or(ms, |m| m.max(ms)));
                             }
                         });
+                        if let Some(why) = closed {
+                            tracing::warn!(robot = id, ?why, "robot link closed");
+                            break;
+                        }
                     }
                     Some(LinkEvent::Closed(why)) => {
                         tracing::warn!(robot = id, ?why, "robot link closed");

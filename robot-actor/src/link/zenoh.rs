@@ -5,7 +5,7 @@
 //!
 //! | key | what |
 //! |---|---|
-//! | `robot/<id>/up` | one sample per packet from robot `<id>` |
+//! | `robot/<id>/up` | packets from robot `<id>`: one or more per sample, each after its length ([`UpBatch`]) |
 //! | `robot/<id>/down` | one sample per packet to robot `<id>` |
 //! | `alive/robot/<id>` | liveliness token, held by the gateway while the robot's link is up |
 //! | `alive/gateway/<name>` | liveliness token of each gateway |
@@ -204,6 +204,64 @@ impl Keys {
     }
 }
 
+/// The packets of one `up` sample: each is preceded by its length as a little-endian `u16`.
+///
+/// A gateway puts every packet its robot's link has already delivered into one sample, so under
+/// load the per-sample cost of zenoh is shared, and a lone packet waits for nothing.
+#[derive(Clone, Debug, Default)]
+pub struct UpBatch {
+    bytes: Vec<u8>,
+    packets: usize,
+}
+
+impl UpBatch {
+    /// Samples stop growing past this many bytes.
+    pub const FULL: usize = 16 * 1024;
+
+    /// Appends one packet (packets are far shorter than 64 KiB; a longer one is cut short,
+    /// which the host then counts as a corrupt packet).
+    pub fn push(&mut self, packet: &[u8]) {
+        let len = packet.len().min(usize::from(u16::MAX));
+        self.bytes.extend_from_slice(&(len as u16).to_le_bytes());
+        self.bytes.extend_from_slice(&packet[..len]);
+        self.packets += 1;
+    }
+
+    /// Packets in it.
+    pub fn packets(&self) -> usize {
+        self.packets
+    }
+
+    /// Whether another packet should go in a sample of its own.
+    pub fn is_full(&self) -> bool {
+        self.bytes.len() >= Self::FULL
+    }
+
+    /// The sample's payload, leaving the batch empty.
+    pub fn take(&mut self) -> Vec<u8> {
+        self.packets = 0;
+        std::mem::take(&mut self.bytes)
+    }
+
+    /// The packets of a sample, in order; `Err` with the packets read when its end is cut short.
+    pub fn split(mut sample: &[u8]) -> Result<Vec<&[u8]>, Vec<&[u8]>> {
+        let mut packets = Vec::new();
+        while !sample.is_empty() {
+            let Some((len, rest)) = sample.split_first_chunk::<2>() else {
+                return Err(packets);
+            };
+            let len = usize::from(u16::from_le_bytes(*len));
+            if rest.len() < len {
+                return Err(packets);
+            }
+            let (packet, rest) = rest.split_at(len);
+            packets.push(packet);
+            sample = rest;
+        }
+        Ok(packets)
+    }
+}
+
 /// Robot ids whose tokens are alive now.
 ///
 /// # Errors
@@ -300,8 +358,16 @@ impl ZenohConnector {
                 .session()
                 .declare_subscriber(self.keys.up(self.id))
                 .callback(move |sample| {
-                    LinkCounters::bump(&counters.packets_in);
-                    let _ = events.send(LinkEvent::Packet(sample.payload().to_bytes().into()));
+                    let payload = sample.payload().to_bytes();
+                    let packets = UpBatch::split(&payload).unwrap_or_else(|read| {
+                        // A sample cut short: the whole packets before the cut still count.
+                        LinkCounters::bump(&counters.framing_errors);
+                        read
+                    });
+                    for packet in packets {
+                        LinkCounters::bump(&counters.packets_in);
+                        let _ = events.send(LinkEvent::Packet(packet.to_vec()));
+                    }
                 })
                 .await
                 .map_err(unavailable)?
@@ -467,6 +533,24 @@ mod tests {
         let on = "{ scouting: { multicast: { enabled: true } } }";
         assert_eq!(with("on.json5", on), "true");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn an_up_sample_carries_packets_in_order_and_a_cut_one_keeps_the_whole_ones() {
+        let mut batch = UpBatch::default();
+        for packet in [&[1u8, 2, 3][..], &[], &[9; 300]] {
+            batch.push(packet);
+        }
+        assert_eq!(batch.packets(), 3);
+        let sample = batch.take();
+        assert_eq!(batch.packets(), 0);
+        let packets = UpBatch::split(&sample).expect("whole");
+        assert_eq!(packets, vec![&[1u8, 2, 3][..], &[], &[9; 300]]);
+        assert_eq!(
+            UpBatch::split(&sample[..sample.len() - 1]),
+            Err(packets[..2].to_vec())
+        );
+        assert_eq!(UpBatch::split(&[7]), Err(vec![]));
     }
 
     #[test]
