@@ -265,7 +265,7 @@ fn contacts(truth: &Value) -> usize {
 }
 
 #[test]
-#[ignore = "about 1 run in 4 fails on the push's known tight turn (a pusher's turn onto the tape \
+#[ignore = "1 run in 9 here failed on the push's known tight turn (a pusher's turn onto the tape \
             beside the other is held); CI's fleet step runs it and reports without gating"]
 fn cooperative_push_runs_through_two_gateways_and_the_box_moves() {
     let _turn = take_turn();
@@ -363,6 +363,8 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
         matches!(status.code(), Some(0 | 1)),
         "the coordinator ended without a verdict: {status}"
     );
+    // line_follow carries on with a robot adopted again: the laps are done by both.
+    assert_eq!(report["success"], true, "{}", report["summary"]);
     let links: Vec<&Value> = report["links"]
         .as_array()
         .expect("the report's link log")
