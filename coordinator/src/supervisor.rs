@@ -544,6 +544,9 @@ impl Handler<RobotEvent> for Supervisor {
                 self.encounters_new.push(encounter);
             }
             RobotEventKind::LinkLost => {
+                // A link lost again before its first report: the behaviour hears of the loss
+                // only, not of a connection it never could use.
+                self.reconnected.remove(&e.robot_id);
                 self.model.lost(e.robot_id);
                 self.note_link(e.robot_id, "lost");
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
