@@ -739,30 +739,79 @@ impl Track {
         (best, cost)
     }
 
-    /// Nearest point of any edge's centre line to `p`; `None` for a track without edges.
-    /// Scans all edges, pruned by bounding circles: meant for placement and supervision, not for
-    /// per-sensor-sample use.
+    /// Nearest point of any edge's centre line to `p`; `None` for a track without edges. Where
+    /// two edges are equally near, the one given first wins.
+    ///
+    /// Searches the index's cells in rings around `p` and stops once no unvisited cell can hold a
+    /// nearer centre line, so a query near the tape looks at a few edges on any size of track.
     pub fn nearest(&self, p: Point2<f64>) -> Option<TrackPoint> {
+        let idx = &self.index;
+        let fx = (p.x - idx.origin.x) / idx.cell;
+        let fy = (p.y - idx.origin.y) / idx.cell;
+        // Off the grid (or NaN) there is no ring to start from: every edge is far anyway.
+        if !(fx >= 0.0 && fy >= 0.0 && fx < idx.cols as f64 && fy < idx.rows as f64) {
+            return self.nearest_scan(p);
+        }
+        let (cx, cy) = (fx as usize, fy as usize);
         let mut best: Option<TrackPoint> = None;
-        for (i, e) in self.edges.iter().enumerate() {
-            if let Some(b) = &best {
-                if (p - e.bound_centre).norm() - e.bound_radius >= b.distance_m {
-                    continue;
+        for k in 0usize.. {
+            let (c0, c1) = (cx.saturating_sub(k), (cx + k).min(idx.cols - 1));
+            let (r0, r1) = (cy.saturating_sub(k), (cy + k).min(idx.rows - 1));
+            for row in r0..=r1 {
+                let on_ring_row = row + k == cy || row == cy + k;
+                for col in c0..=c1 {
+                    if !on_ring_row && col + k != cx && col != cx + k {
+                        continue;
+                    }
+                    let i = row * idx.cols + col;
+                    let (a, b) = (idx.starts[i] as usize, idx.starts[i + 1] as usize);
+                    for &ei in &idx.items[a..b] {
+                        self.consider(ei as usize, p, &mut best);
+                    }
                 }
             }
-            let (offset_m, distance_m, point) = e.shape.closest(p);
-            if best.as_ref().is_none_or(|b| distance_m < b.distance_m) {
-                let (_, tangent) = e.shape.point_at(offset_m);
-                best = Some(TrackPoint {
-                    edge: i,
-                    offset_m,
-                    distance_m,
-                    point,
-                    tangent,
-                });
+            // Every centre line point outside rings 0..=k is at least k cells from `p`.
+            let bound = k as f64 * idx.cell;
+            let whole_grid = c0 == 0 && r0 == 0 && c1 == idx.cols - 1 && r1 == idx.rows - 1;
+            if whole_grid || best.as_ref().is_some_and(|b| b.distance_m < bound) {
+                break;
             }
         }
         best
+    }
+
+    /// [`nearest`](Self::nearest) by testing every edge, pruned by bounding circles: the
+    /// reference the index is checked and benchmarked against.
+    pub fn nearest_scan(&self, p: Point2<f64>) -> Option<TrackPoint> {
+        let mut best: Option<TrackPoint> = None;
+        for i in 0..self.edges.len() {
+            self.consider(i, p, &mut best);
+        }
+        best
+    }
+
+    /// Makes edge `i` the `best` if it is nearer to `p`, or as near and given earlier.
+    fn consider(&self, i: usize, p: Point2<f64>, best: &mut Option<TrackPoint>) {
+        let e = &self.edges[i];
+        if let Some(b) = best {
+            if (p - e.bound_centre).norm() - e.bound_radius > b.distance_m {
+                return;
+            }
+        }
+        let (offset_m, distance_m, point) = e.shape.closest(p);
+        let better = best.as_ref().is_none_or(|b| {
+            distance_m < b.distance_m || (distance_m == b.distance_m && i < b.edge)
+        });
+        if better {
+            let (_, tangent) = e.shape.point_at(offset_m);
+            *best = Some(TrackPoint {
+                edge: i,
+                offset_m,
+                distance_m,
+                point,
+                tangent,
+            });
+        }
     }
 
     /// The point of edge `edge` nearest to `p` (like [`nearest`](Self::nearest), restricted to
@@ -1146,6 +1195,25 @@ mod tests {
                 y += 0.0007;
             }
             x += 0.0013;
+        }
+    }
+
+    #[test]
+    fn indexed_nearest_agrees_with_the_scan_on_every_preset() {
+        for name in ["oval", "push", "junction", "grid"] {
+            let w = crate::presets::preset(name).expect("preset parses");
+            let mut x = -0.1;
+            while x < w.arena.width_m + 0.1 {
+                let mut y = -0.1;
+                while y < w.arena.height_m + 0.1 {
+                    let q = p(x, y);
+                    let (a, b) = (w.track.nearest(q), w.track.nearest_scan(q));
+                    let key = |t: Option<TrackPoint>| t.map(|t| (t.edge, t.offset_m, t.distance_m));
+                    assert_eq!(key(a), key(b), "{name} at {q}");
+                    y += 0.0071;
+                }
+                x += 0.0093;
+            }
         }
     }
 }
