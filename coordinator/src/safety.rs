@@ -90,7 +90,45 @@ impl Safety {
                 }
             }
         }
+        // Broad phase: only a robot with a pose within reach of the path's bounding box can
+        // fail the exact test below, which with a thousand robots would otherwise dominate.
+        let half_diag =
+            |margin: f64| (self.length_m / 2.0 + margin).hypot(self.width_m / 2.0 + margin);
+        let (mut lo, mut hi) = (
+            (f64::INFINITY, f64::INFINITY),
+            (f64::NEG_INFINITY, f64::NEG_INFINITY),
+        );
+        for p in &path {
+            lo = (lo.0.min(p.x), lo.1.min(p.y));
+            hi = (hi.0.max(p.x), hi.1.max(p.y));
+        }
+        let mine_reach = half_diag(my_margin.max(self.margin_m));
+        let near = |q: Pose, their_margin: f64| {
+            let dx = (lo.0 - q.x).max(q.x - hi.0).max(0.0);
+            let dy = (lo.1 - q.y).max(q.y - hi.1).max(0.0);
+            // NaN poses and margins compare false and so count as near: the exact test decides.
+            !(dx.hypot(dy) > mine_reach + half_diag(their_margin) + 1e-3)
+        };
+        let widest = world
+            .robots
+            .iter()
+            .map(|o| o.uncertainty.position_m)
+            .fold(0.0, f64::max);
+        let widest_margin = self.margin_m + UNCERTAINTY_SIGMAS * widest;
+        let mut near_planned: Vec<(u16, Pose)> = others_planned
+            .iter()
+            .filter(|(_, p)| near(*p, widest_margin))
+            .copied()
+            .collect();
+        near_planned.sort_by_key(|(id, _)| *id);
         for other in world.robots.iter().filter(|o| o.id != me.id) {
+            let their_margin = self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
+            let planned_near = near_planned
+                .binary_search_by_key(&other.id, |(id, _)| *id)
+                .is_ok();
+            if !planned_near && !near(other.pose, their_margin) {
+                continue;
+            }
             let mut theirs = vec![other.pose];
             theirs.extend(
                 others_planned
@@ -99,8 +137,6 @@ impl Safety {
                     .map(|(_, p)| *p),
             );
             for q in theirs {
-                let their_margin =
-                    self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
                 let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
                 // Robots already inside each other's widened footprints (pushing side by side,
                 // or a bad estimate) may still move apart or alongside: such a path is refused
