@@ -132,6 +132,18 @@ impl Observer {
 
     fn snapshot(&mut self) {
         self.observed.snapshots += 1;
+        // Rendering every robot as JSON costs more than simulating it at a thousand robots: do it
+        // only for a recorder or an open panel page.
+        let watched = self
+            .setup
+            .feed
+            .as_ref()
+            .is_some_and(|f| f.receiver_count() > 0);
+        if self.setup.recorder.is_none() && !watched {
+            self.encounters.clear();
+            self.wheel_samples.clear();
+            return;
+        }
         let t = self.t();
         let views = self.model.views();
         let robots: Vec<Value> = views
