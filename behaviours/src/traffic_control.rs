@@ -611,7 +611,13 @@ impl TrafficControl {
                 b.active = false;
             }
             if !b.active {
-                b.goal = here;
+                // A robot whose quota is done keeps clear where it is; with lifelong replanning
+                // one the plan has sent on from its last goal keeps that goal, so that the last
+                // plan, run to its end, brings it back (barrier plans start with it standing on
+                // it, as it stops there).
+                if !(b.reached && self.replan_mode == Replan::Lifelong) {
+                    b.goal = here;
+                }
                 continue;
             }
             // A robot driving to its goal keeps it: reaching it is counted on arrival.
