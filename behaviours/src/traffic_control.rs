@@ -6,8 +6,13 @@
 //! to its current goal; a robot without a task keeps its node as goal and is pushed aside when in
 //! the way. The plan is executed as an action dependency graph: a robot drives into a node only
 //! after every robot the plan put there before it has driven out, so robots that are slower or
-//! faster than the plan assumed never meet. When a robot reaches its goal it gets its next task;
-//! at the next moment every robot stands on a node, the team is planned again.
+//! faster than the plan assumed never meet. When a robot reaches its goal it gets its next task
+//! and the team is planned again. With `replan=lifelong` that happens at the next snapshot while
+//! the team keeps moving: from each robot's committed node (the one it stands on, or the end of the
+//! edge it is driving, whose drive is kept as its first action, so that a robot sent into the
+//! node it left still waits for it to arrive), one plan for all robots that reached their goals
+//! since the last. With `replan=barrier`, the default, no new action starts until every robot
+//! stands on a node, then the team is planned from there.
 //!
 //! Each edge is driven by the robot's own locomotion (a turn onto the tape's direction, then a
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
@@ -37,7 +42,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use mapf::{lacam, Adg, Graph};
+use mapf::{lacam, Adg, Graph, Solution};
 use nalgebra::{Point2, Vector2};
 use petgraph::graph::NodeIndex;
 use protocol::packets::MoveOutcome;
@@ -59,6 +64,9 @@ use crate::team::Team;
 const DRIVE_MPS: f32 = 0.1;
 /// Length of one driven segment: each is planned afresh from the corrected pose.
 const LOOKAHEAD: f64 = 0.08;
+/// Longest segment the `segment_m` parameter may ask for: beyond it a heading error of a few
+/// degrees puts the end of a segment centimetres off the tape before the next is planned.
+const MAX_SEGMENT_M: f64 = 0.25;
 /// A segment bends the heading by at most twice this; beyond it the robot turns first.
 const MAX_BEND: f64 = 35.0 * std::f64::consts::PI / 180.0;
 /// No robot finishing an edge for this long (simulated, lost time not counted) starts a recovery.
@@ -79,13 +87,25 @@ pub const TASKS_PER_ROBOT: f64 = 1.5;
 /// Search budget per plan; deterministic, unlike a time limit.
 const MAX_EXPANSIONS: u64 = 2_000_000;
 
+/// How the team is planned again when robots reach their goals.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Replan {
+    /// No new action starts until every robot stands on a node, then the whole team is planned
+    /// from there.
+    Barrier,
+    /// At the next snapshot, the team is planned from its committed configuration (each robot's
+    /// node, or the end of the edge it is driving, whose drive is kept) while it keeps moving.
+    Lifelong,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     /// Driving from the start poses onto nodes.
     Placing,
     /// Executing a plan.
     Running,
-    /// A robot reached its goal: no new actions start; replan once all are on nodes.
+    /// A robot reached its goal (barrier replanning) or a recovery: no new actions start;
+    /// replan once all are on nodes.
     Draining,
 }
 
@@ -119,6 +139,9 @@ struct Bot {
     /// Its leg ended without a move (it already stood on the node): completed at the next step.
     at_end: bool,
     tasks_done: u32,
+    /// Its goal was reached and no new one given yet: with lifelong replanning a robot may be
+    /// sent on from its goal by the plan before the next one is made.
+    reached: bool,
     /// Tape length of the edges it finished driving, metres.
     edges_m: f64,
     /// A segment was held back by the safety check: plan it again.
@@ -153,6 +176,13 @@ pub struct TrafficControl {
     recoveries: u32,
     recoveries_total: u32,
     scripted: bool,
+    replan_mode: Replan,
+    /// Lifelong replanning: a robot reached its goal since the last plan.
+    replan_due: bool,
+    /// Plans made while robots were driving (lifelong replanning).
+    replans_live: u32,
+    /// Length of one driven segment.
+    segment_m: f64,
     plan_time_max: Duration,
     last_progress: Duration,
     started: Duration,
@@ -164,7 +194,9 @@ impl TrafficControl {
     /// Builds it. Parameters: `tasks` (tasks to complete in all, default [`TASKS_PER_ROBOT`] per
     /// robot), `quota` (tasks per robot after which it only keeps out of the way; default
     /// unlimited), `goals` (a comma-separated list of node ids, one per robot: each robot's
-    /// single task, for scripted scenarios such as a swap through a single-lane section).
+    /// single task, for scripted scenarios such as a swap through a single-lane section),
+    /// `replan` (`barrier`, the default, or `lifelong`: see [`Replan`]), `segment_m` (length of
+    /// one driven segment, default 0.08 m).
     ///
     /// # Errors
     /// A track without edges, unknown goal nodes, or a parameter out of range.
@@ -185,6 +217,19 @@ impl TrafficControl {
         };
         if target_tasks == 0 {
             return Err("tasks must be at least 1".into());
+        }
+        let replan_mode = match cfg.param_text("replan") {
+            // Lifelong plans are not the default: on `grid` with 200 tasks, seeds 6 and 8 lost a
+            // robot (a slipped turn) that the barrier's runs of the same seeds did not.
+            None | Some("barrier") => Replan::Barrier,
+            Some("lifelong") => Replan::Lifelong,
+            Some(other) => return Err(format!("replan={other:?}: expected lifelong or barrier")),
+        };
+        let segment_m: f64 = cfg.param("segment_m", LOOKAHEAD)?;
+        if !(0.02..=MAX_SEGMENT_M).contains(&segment_m) {
+            return Err(format!(
+                "segment_m={segment_m}: expected 0.02 to {MAX_SEGMENT_M} m"
+            ));
         }
         let scripted: Option<Vec<u32>> = match cfg.param_text("goals") {
             None => None,
@@ -219,6 +264,7 @@ impl TrafficControl {
                 driving: None,
                 at_end: false,
                 tasks_done: 0,
+                reached: false,
                 edges_m: 0.0,
                 retry: false,
                 held_since: None,
@@ -249,6 +295,10 @@ impl TrafficControl {
             recoveries: 0,
             recoveries_total: 0,
             scripted: scripted.is_some(),
+            replan_mode,
+            replan_due: false,
+            replans_live: 0,
+            segment_m,
             plan_time_max: Duration::ZERO,
             last_progress: Duration::ZERO,
             started: Duration::ZERO,
@@ -318,8 +368,8 @@ impl TrafficControl {
             len - here.offset_m
         };
         let remaining = (len - done).max(0.0);
-        let ahead = (done + LOOKAHEAD).min(len);
-        leg.last = remaining <= LOOKAHEAD + 0.01;
+        let ahead = (done + self.segment_m).min(len);
+        leg.last = remaining <= self.segment_m + 0.01;
         let target_offset = if leg.last {
             if leg.forward {
                 len
@@ -518,19 +568,20 @@ impl TrafficControl {
         Ok(out)
     }
 
-    /// A new goal for robot `k`: a random node that is no other robot's goal nor its own node.
-    fn new_task(&mut self, k: usize) {
+    /// A new goal for robot `k`, planned from `here`: a random node that is no other robot's
+    /// goal nor `here`.
+    fn new_task(&mut self, k: usize, here: u32) {
         let n = self.mapf.num_vertices() as u32;
-        let used: Vec<u32> = self
+        let used: std::collections::HashSet<u32> = self
             .bots
             .iter()
             .enumerate()
             .filter(|(j, _)| *j != k)
             .map(|(_, b)| b.goal)
             .collect();
-        let here = self.bots[k].node;
         let free: Vec<u32> = (0..n).filter(|v| *v != here && !used.contains(v)).collect();
         let bot = &mut self.bots[k];
+        bot.reached = false;
         bot.goal = if free.is_empty() {
             here
         } else {
@@ -540,37 +591,66 @@ impl TrafficControl {
 
     /// Goals for everyone at a goal, then a plan for the whole team from where it stands.
     fn replan(&mut self) -> Result<(), String> {
-        for k in 0..self.bots.len() {
+        let starts: Vec<u32> = self.bots.iter().map(|b| b.node).collect();
+        let goals = self.assign_goals(&starts);
+        let plan = self.solve(&starts, &goals)?;
+        self.adg = Some(Adg::new(&plan).map_err(|e| format!("plan not executable: {e}"))?);
+        self.replans += 1;
+        self.replan_due = false;
+        Ok(())
+    }
+
+    /// New tasks for the robots standing on their goals, and the goals to plan for: each robot's
+    /// own, or the node it is planned from (`starts`) while its goal is another's.
+    fn assign_goals(&mut self, starts: &[u32]) -> Vec<u32> {
+        for (k, &here) in starts.iter().enumerate() {
+            let driving = self.bots[k].driving.is_some();
             let b = &mut self.bots[k];
-            if b.active && b.goal == b.node && self.scripted {
+            if b.active && b.goal == here && self.scripted && !driving {
                 // A scripted robot that starts on its goal has nothing to do but keep clear.
                 b.tasks_done += 1;
                 self.tasks += 1;
                 b.active = false;
             }
-            let b = &self.bots[k];
-            let at_goal = b.goal == b.node || b.goal == u32::MAX;
-            if at_goal && b.active {
-                self.new_task(k);
-            } else if !b.active {
-                self.bots[k].goal = self.bots[k].node;
+            if !b.active {
+                // A robot whose quota is done keeps clear where it is; with lifelong replanning
+                // one the plan has sent on from its last goal keeps that goal, so that the last
+                // plan, run to its end, brings it back (barrier plans start with it standing on
+                // it, as it stops there).
+                if !(b.reached && self.replan_mode == Replan::Lifelong) {
+                    b.goal = here;
+                }
+                continue;
+            }
+            // A robot driving to its goal keeps it: reaching it is counted on arrival.
+            if b.reached || b.goal == u32::MAX || (!driving && b.goal == here) {
+                self.new_task(k, here);
             }
         }
-        // Goals must differ: a robot whose goal another holds waits where it is this round.
-        let mut seen: Vec<u32> = Vec::new();
+        // Goals must differ: a robot whose goal another holds waits where it is this round. A
+        // standing robot's goal becomes its node (it gets a new task next round, as before); a
+        // driving one keeps its goal, so arriving on the node it drives to is not a task done.
+        let mut goals: Vec<u32> = self.bots.iter().map(|b| b.goal).collect();
+        let mut seen = std::collections::HashSet::with_capacity(goals.len());
         for k in 0..self.bots.len() {
-            if seen.contains(&self.bots[k].goal) {
-                self.bots[k].goal = self.bots[k].node;
+            if seen.contains(&goals[k]) {
+                goals[k] = starts[k];
+                if self.bots[k].driving.is_none() {
+                    self.bots[k].goal = starts[k];
+                }
             }
-            seen.push(self.bots[k].goal);
+            seen.insert(goals[k]);
         }
-        let starts: Vec<u32> = self.bots.iter().map(|b| b.node).collect();
-        let goals: Vec<u32> = self.bots.iter().map(|b| b.goal).collect();
+        goals
+    }
+
+    /// A plan from `starts` to `goals`.
+    fn solve(&mut self, starts: &[u32], goals: &[u32]) -> Result<Solution, String> {
         let t = Instant::now();
         let plan = lacam::solve(
             &self.mapf,
-            &starts,
-            &goals,
+            starts,
+            goals,
             &lacam::Options {
                 seed: self.seed.wrapping_add(u64::from(self.replans)),
                 time_limit: None,
@@ -582,9 +662,47 @@ impl TrafficControl {
         )
         .map_err(|e| format!("planning failed: {e}"))?;
         self.plan_time_max = self.plan_time_max.max(t.elapsed());
+        Ok(plan)
+    }
+
+    /// Lifelong replanning: new tasks for the robots on their goals and a plan for the team while
+    /// it keeps moving. Each robot is planned from its committed node: the one it stands on, or
+    /// the end of the edge it is driving. That drive is kept as the robot's first action of the
+    /// new plan (its path gets the edge's start node in front, standing robots' paths a wait),
+    /// so the dependency graph makes any robot the plan sends into that start node wait until
+    /// the drive is complete, as the old plan did. Committed nodes are distinct (a robot drives
+    /// into a node only once its previous occupant has arrived elsewhere) and so are the start
+    /// nodes, so the prefixed plan is a valid one.
+    ///
+    /// Returns false, planning nothing, while some robot drives outside the plan.
+    fn replan_lifelong(&mut self) -> Result<bool, String> {
+        if self
+            .bots
+            .iter()
+            .any(|b| b.driving.is_some_and(|l| l.index.is_none()))
+        {
+            return Ok(false);
+        }
+        let committed: Vec<u32> = self
+            .bots
+            .iter()
+            .map(|b| b.driving.map_or(b.node, |l| l.to))
+            .collect();
+        let goals = self.assign_goals(&committed);
+        let mut plan = self.solve(&committed, &goals)?;
+        for (b, path) in self.bots.iter().zip(plan.paths.iter_mut()) {
+            path.insert(0, b.node);
+        }
         self.adg = Some(Adg::new(&plan).map_err(|e| format!("plan not executable: {e}"))?);
+        for b in &mut self.bots {
+            if let Some(leg) = b.driving.as_mut() {
+                leg.index = Some(0);
+            }
+        }
         self.replans += 1;
-        Ok(())
+        self.replans_live += 1;
+        self.replan_due = false;
+        Ok(true)
     }
 
     /// Starts every action the dependency graph allows.
@@ -771,6 +889,7 @@ impl TrafficControl {
                 f64::from(self.tasks) / minutes.max(1e-9),
             )
             .with("plans", f64::from(self.replans))
+            .with("live_plans", f64::from(self.replans_live))
             .with("recoveries", f64::from(self.recoveries_total))
             .with("held_segments", f64::from(self.held))
             .with("plan_time_max_ms", self.plan_time_max.as_secs_f64() * 1e3),
@@ -808,6 +927,7 @@ impl TrafficControl {
         let b = &mut self.bots[k];
         if b.active && leg.to == b.goal {
             b.tasks_done += 1;
+            b.reached = true;
             self.tasks += 1;
             self.recoveries = 0;
             if self.quota.is_some_and(|q| b.tasks_done >= q) {
@@ -818,7 +938,11 @@ impl TrafficControl {
             // so that one pushed aside returns to its goal; lifelong tasks end once every robot
             // has finished its edge (running the plan to its end took minutes: LaCAM's paths for
             // robots far from their goals can be long).
-            if self.tasks < self.target_tasks || self.quota.is_none() {
+            // With lifelong replanning, robots keep driving and the team is planned again at the
+            // next snapshot, from where each robot stands or is driving to.
+            if self.tasks < self.target_tasks && self.replan_mode == Replan::Lifelong {
+                self.replan_due = true;
+            } else if self.tasks < self.target_tasks || self.quota.is_none() {
                 self.phase = Phase::Draining;
             }
         }
@@ -828,7 +952,9 @@ impl TrafficControl {
         Ok(())
     }
 
-    fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+    /// One round: arrivals, recovery, replanning and dispatch. Lifelong plans are made only at
+    /// a `snapshot`, so that all robots reaching their goals since the last one share a plan.
+    fn step(&mut self, world: &WorldSnapshot, team: &Team, snapshot: bool) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
@@ -893,6 +1019,10 @@ impl TrafficControl {
                 return self.finish(world);
             }
             self.phase = Phase::Running;
+        } else if self.phase == Phase::Running && self.replan_due && snapshot {
+            if let Err(e) = self.replan_lifelong() {
+                return self.fail(e);
+            }
         }
         out.extend(self.dispatch(world, team));
         out
@@ -922,7 +1052,7 @@ impl Behaviour for TrafficControl {
     }
 
     fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
-        self.step(world, team)
+        self.step(world, team, true)
     }
 
     fn on_event(
@@ -959,10 +1089,10 @@ impl Behaviour for TrafficControl {
                             if let Err(e) = self.complete_leg(k, leg, world) {
                                 return self.fail(e);
                             }
-                            return self.step(world, team);
+                            return self.step(world, team, false);
                         }
                         Some(_) => return self.drive(k, world),
-                        None => return self.step(world, team),
+                        None => return self.step(world, team, false),
                     }
                 }
                 Vec::new()
@@ -1026,7 +1156,7 @@ impl Behaviour for TrafficControl {
                 if self.bots[k].driving.is_some() && team.idle(robot) {
                     out.extend(self.drive(k, world));
                 }
-                out.extend(self.step(world, team));
+                out.extend(self.step(world, team, false));
                 out
             }
         }
@@ -1334,6 +1464,66 @@ mod tests {
             "it drives back where it came from"
         );
         assert!(moves_for(&out, 2) > 0, "{out:?}");
+    }
+
+    #[test]
+    fn a_lifelong_plan_keeps_a_drive_and_lets_no_robot_into_the_node_it_left_before_it_arrives() {
+        let mut t = junction(&[1, 2]);
+        let (a, f, c) = (node(&t, "A"), node(&t, "F"), node(&t, "C"));
+        let (edge, forward) = t.edge_between(f, c).unwrap();
+        t.phase = Phase::Running;
+        // Robot 1 stands on A with F as its goal; robot 2 drives F -> C, its goal.
+        t.bots[0].node = a;
+        t.bots[0].goal = f;
+        t.bots[1].node = f;
+        t.bots[1].goal = c;
+        t.bots[1].driving = Some(EdgeDrive {
+            index: Some(7),
+            edge,
+            forward,
+            to: c,
+            last: false,
+            back: false,
+        });
+        assert!(t.replan_lifelong().unwrap());
+        assert_eq!(t.bots[1].driving.unwrap().index, Some(0));
+        let adg = t.adg.as_mut().unwrap();
+        assert_eq!((adg.actions(1)[0].from, adg.actions(1)[0].to), (f, c));
+        assert_eq!((adg.actions(0)[0].from, adg.actions(0)[0].to), (a, f));
+        assert_eq!(adg.dependency(0, 0), Some((1, 0)));
+        assert_eq!(adg.ready(0), None);
+        adg.complete(1, 0).unwrap();
+        assert_eq!(adg.ready(0).map(|x| x.to), Some(f));
+        // Neither goal was reached, so no task was given or counted.
+        assert_eq!((t.bots[0].goal, t.bots[1].goal, t.tasks), (f, c, 0));
+    }
+
+    #[test]
+    fn a_robot_sent_on_from_its_goal_gets_a_new_task_at_the_next_lifelong_plan() {
+        let mut t = junction(&[1, 2]);
+        let (a, f, c) = (node(&t, "A"), node(&t, "F"), node(&t, "C"));
+        let (edge, forward) = t.edge_between(f, c).unwrap();
+        t.phase = Phase::Running;
+        t.bots[0].node = a;
+        t.bots[0].goal = u32::MAX;
+        // Robot 2 reached F, its goal, and the old plan sent it on towards C.
+        t.bots[1].node = f;
+        t.bots[1].goal = f;
+        t.bots[1].reached = true;
+        t.bots[1].driving = Some(EdgeDrive {
+            index: Some(2),
+            edge,
+            forward,
+            to: c,
+            last: false,
+            back: false,
+        });
+        assert!(t.replan_lifelong().unwrap());
+        // A new task from C, where it is committed to: not counted again on reaching F.
+        assert!(!t.bots[1].reached);
+        assert_ne!(t.bots[1].goal, c);
+        assert_eq!(t.tasks, 0);
+        assert_ne!(t.bots[0].goal, t.bots[1].goal);
     }
 
     #[test]
