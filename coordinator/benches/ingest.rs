@@ -299,8 +299,7 @@ async fn bare_channel(epoch: Instant, links: usize, count: u64) -> f64 {
     let taken = Arc::new(Taken::default());
     let counter = Arc::clone(&taken);
     actix::spawn(async move {
-        while let Some(e) = rx.recv().await {
-            drop(e);
+        while rx.recv().await.is_some() {
             let n = counter.frames.fetch_add(1, Ordering::Relaxed) + 1;
             if n == count {
                 counter
