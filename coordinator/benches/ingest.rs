@@ -1,11 +1,23 @@
-//! State packets reflected into the world model per second, for 10, 100, 1,000 and 10,000 robot
-//! links fed by a synthetic packet source (no physics): frame bytes → robot actor (checksum,
-//! decode, odometry) → `StateUpdated` → world model. Also the p99 latency from a frame entering
-//! the link to the world model holding it.
+//! State frames into the world model, for 10, 100, 1,000 and 10,000 robot links fed by a
+//! synthetic packet source (no physics): frame bytes → robot actor (checksum, decode, odometry)
+//! → `StateBatch` → world model, the path the supervisor takes.
 //!
-//! Everything runs on one actix arbiter; the source stamps each state packet with its send time so
-//! the latency is measured end to end.
+//! The robot actors are spread over one shard arbiter per core (`Shards::per_core`), as the
+//! coordinator does for robots on a real clock; the world model is written on the system arbiter,
+//! like the supervisor's. The source is a thread of its own that stamps each frame with its send
+//! time, so latency is measured end to end, from the frame entering its link to the model holding
+//! it. Per link count, in one run:
+//!
+//! - saturation: the source keeps a window of frames in flight, as many as the pipeline takes;
+//! - the offered load of 10,000 links × 50 Hz: 500,000 frames/s, paced (due frames sent every
+//!   100 µs), spread round-robin over the links; p50 and p99 of frame → world model;
+//! - a bare tokio channel carrying the same number of the same frames from the same source to a
+//!   task on the system arbiter, and the saturation rate as a fraction of it.
+//!
+//! Built without optimisations (`cargo test --benches`), every phase runs only a few milliseconds.
+//! `INGEST_LINKS=N` runs only the row for N links.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -15,13 +27,19 @@ use futures::future::BoxFuture;
 use futures::FutureExt;
 use protocol::RobotState;
 use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
-use robot_actor::{Robot, RobotConfig, StateUpdated};
+use robot_actor::{RobotConfig, Shards, StateBatch};
 use tokio::sync::mpsc;
+
+/// The offered load: 10,000 links at 50 Hz.
+const OFFERED_PER_S: f64 = 500_000.0;
+
+/// Every link's packet queue, by robot id, as the robots connect.
+type Feed = Arc<Mutex<Vec<(u16, mpsc::UnboundedSender<LinkEvent>)>>>;
 
 /// A robot that says hello and then sends whatever the bench pushes into its queue.
 struct Synthetic {
     id: u16,
-    feed: Arc<Mutex<Vec<mpsc::UnboundedSender<LinkEvent>>>>,
+    feed: Feed,
 }
 
 impl Connector for Synthetic {
@@ -36,7 +54,7 @@ impl Connector for Synthetic {
         let hello = protocol::packets::Hello::new(&settings, [0, 1, 0]);
         let (buf, n) = protocol::frame::encode_to_array(&hello);
         let _ = events.send(LinkEvent::Packet(buf[..n].to_vec()));
-        self.feed.lock().unwrap().push(events);
+        self.feed.lock().unwrap().push((self.id, events));
         // Host packets (pings, settings reads) are drained and ignored.
         tokio::spawn(async move { while from_host.recv().await.is_some() {} });
         async move {
@@ -51,30 +69,48 @@ impl Connector for Synthetic {
     }
 }
 
-/// Applies updates to the world model and records latencies.
+/// What the world-model side has taken so far.
+#[derive(Default)]
+struct Taken {
+    /// Frames applied.
+    frames: AtomicU64,
+    /// When the latest was applied, nanoseconds after the epoch.
+    last_ns: AtomicU64,
+    /// Frame → model latencies, nanoseconds, while recording.
+    latencies: Mutex<Vec<u64>>,
+}
+
+/// Applies batches to the world model, as the supervisor does, and records latencies.
 struct Ingest {
     model: WorldModel,
     epoch: Instant,
-    latencies: Arc<Mutex<Vec<u64>>>,
+    taken: Arc<Taken>,
 }
 
 impl Actor for Ingest {
     type Context = Context<Self>;
 }
 
-impl Handler<StateUpdated> for Ingest {
+impl Handler<StateBatch> for Ingest {
     type Result = ();
-    fn handle(&mut self, u: StateUpdated, _: &mut Context<Self>) {
-        self.model.apply(&u);
-        let sent = (u64::from(u.state.link.tx_packets) << 32) | u64::from(u.state.link.rx_packets);
-        let now = self.epoch.elapsed().as_nanos() as u64;
-        self.latencies
-            .lock()
-            .unwrap()
-            .push(now.saturating_sub(sent));
+    fn handle(&mut self, batch: StateBatch, _: &mut Context<Self>) {
+        let mut latencies = self.taken.latencies.lock().unwrap();
+        let mut now = 0;
+        for u in &batch.0 {
+            self.model.apply(u);
+            let sent =
+                (u64::from(u.state.link.tx_packets) << 32) | u64::from(u.state.link.rx_packets);
+            now = self.epoch.elapsed().as_nanos() as u64;
+            latencies.push(now.saturating_sub(sent));
+        }
+        self.taken
+            .frames
+            .fetch_add(batch.0.len() as u64, Ordering::Relaxed);
+        self.taken.last_ns.store(now, Ordering::Relaxed);
     }
 }
 
+/// A full state frame from robot `id`, stamped with the time since `epoch`.
 fn state_frame(epoch: Instant, id: u16, seq: i32) -> Vec<u8> {
     let mut s = RobotState::default();
     s.encoders.left_ticks = seq;
@@ -87,10 +123,92 @@ fn state_frame(epoch: Instant, id: u16, seq: i32) -> Vec<u8> {
     buf[..n].to_vec()
 }
 
-async fn measure(links: usize, wall: Duration) -> (f64, Duration) {
-    let feed = Arc::new(Mutex::new(Vec::new()));
+/// How the source sends.
+#[derive(Clone, Copy)]
+enum Pace {
+    /// As fast as the pipeline takes them, at most this many frames in flight.
+    Saturate { window: u64 },
+    /// This many frames per second.
+    Offered(f64),
+}
+
+/// Sends frames round-robin over `sinks` for `wall` (or `count` frames, whichever is first),
+/// paced by `pace` against `taken`; returns how many it sent.
+fn source(
+    epoch: Instant,
+    sinks: &[(u16, mpsc::UnboundedSender<LinkEvent>)],
+    pace: Pace,
+    taken: &Taken,
+    wall: Duration,
+) -> u64 {
+    let start = Instant::now();
+    let base = taken.frames.load(Ordering::Relaxed);
+    let mut sent = 0u64;
+    while start.elapsed() < wall {
+        let due = match pace {
+            Pace::Saturate { window } => taken.frames.load(Ordering::Relaxed) - base + window,
+            Pace::Offered(rate) => (start.elapsed().as_secs_f64() * rate) as u64,
+        };
+        while sent < due {
+            let (id, sink) = &sinks[sent as usize % sinks.len()];
+            let seq = (sent / sinks.len() as u64) as i32;
+            let _ = sink.send(LinkEvent::Packet(state_frame(epoch, *id, seq)));
+            sent += 1;
+        }
+        match pace {
+            Pace::Saturate { .. } => std::thread::yield_now(),
+            Pace::Offered(_) => std::thread::sleep(Duration::from_micros(100)),
+        }
+    }
+    sent
+}
+
+/// Runs `source` on a thread of its own and waits (on the caller's arbiter) until the model has
+/// taken every frame it sent.
+async fn drive(
+    epoch: Instant,
+    sinks: Arc<Vec<(u16, mpsc::UnboundedSender<LinkEvent>)>>,
+    pace: Pace,
+    taken: Arc<Taken>,
+    wall: Duration,
+) -> u64 {
+    let base = taken.frames.load(Ordering::Relaxed);
+    let (done, sent) = tokio::sync::oneshot::channel();
+    let t = Arc::clone(&taken);
+    std::thread::spawn(move || {
+        let _ = done.send(source(epoch, &sinks, pace, &t, wall));
+    });
+    let sent = sent.await.expect("the source thread finishes");
+    while taken.frames.load(Ordering::Relaxed) < base + sent {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    sent
+}
+
+/// One row of the table.
+struct Row {
+    links: usize,
+    saturation: f64,
+    offered_rate: f64,
+    p50: Duration,
+    p99: Duration,
+    bare: f64,
+}
+
+fn percentile(sorted: &[u64], p: usize) -> Duration {
+    Duration::from_nanos(
+        sorted
+            .get((sorted.len() * p / 100).min(sorted.len().saturating_sub(1)))
+            .copied()
+            .unwrap_or(0),
+    )
+}
+
+async fn measure(links: usize, wall: Duration) -> Row {
+    let shards = Shards::per_core();
+    let feed: Feed = Arc::new(Mutex::new(Vec::new()));
     let epoch = Instant::now();
-    let latencies = Arc::new(Mutex::new(Vec::with_capacity(1 << 20)));
+    let taken = Arc::new(Taken::default());
     let model = WorldModel::new(Arc::new(simulator::world::Track::default()));
     for id in 1..=links as u16 {
         model.add(id);
@@ -98,12 +216,12 @@ async fn measure(links: usize, wall: Duration) -> (f64, Duration) {
     let ingest = Ingest {
         model: model.clone(),
         epoch,
-        latencies: Arc::clone(&latencies),
+        taken: Arc::clone(&taken),
     }
     .start();
     let mut robots = Vec::new();
     for id in 1..=links as u16 {
-        let robot = Robot::start(
+        let robot = shards.start(
             Arc::new(Synthetic {
                 id,
                 feed: Arc::clone(&feed),
@@ -114,57 +232,137 @@ async fn measure(links: usize, wall: Duration) -> (f64, Duration) {
                 ..RobotConfig::default()
             },
         );
-        robot.subscribe(ingest.clone().recipient());
+        robot.subscribe_batches(ingest.clone().recipient());
         robots.push(robot);
     }
     for r in &robots {
         r.connected().await.expect("hello");
     }
-    let senders = feed.lock().unwrap().clone();
-    // Keep a bounded number of frames in flight so latency measures the pipeline, not a backlog.
-    let batch = 2_000.max(links);
-    let start = Instant::now();
-    let mut seq = 0i32;
-    latencies.lock().unwrap().clear();
-    while start.elapsed() < wall {
-        seq = seq.wrapping_add(1);
-        for k in 0..batch {
-            let i = (seq as usize * batch + k) % links;
-            let _ = senders[i].send(LinkEvent::Packet(state_frame(epoch, i as u16 + 1, seq)));
-        }
-        // Let the actors drain this batch before the next one.
-        while latencies.lock().unwrap().len() < (seq as usize) * batch {
-            tokio::task::yield_now().await;
-        }
-    }
-    let elapsed = start.elapsed();
-    let mut l = std::mem::take(&mut *latencies.lock().unwrap());
-    let rate = l.len() as f64 / elapsed.as_secs_f64();
+    let mut sinks = feed.lock().unwrap().clone();
+    sinks.sort_by_key(|(id, _)| *id);
+    let sinks = Arc::new(sinks);
+
+    // (a) Saturation: enough in flight that every shard always has work.
+    let window = (4 * links as u64).max(20_000);
+    let t0 = epoch.elapsed().as_nanos() as u64;
+    let base = taken.frames.load(Ordering::Relaxed);
+    let sent = drive(
+        epoch,
+        Arc::clone(&sinks),
+        Pace::Saturate { window },
+        Arc::clone(&taken),
+        wall,
+    )
+    .await;
+    let took = taken.frames.load(Ordering::Relaxed) - base;
+    let saturation = took as f64 / ((taken.last_ns.load(Ordering::Relaxed) - t0) as f64 * 1e-9);
+
+    // (b) The offered load, paced; only its latencies are kept.
+    taken.latencies.lock().unwrap().clear();
+    let t0 = epoch.elapsed().as_nanos() as u64;
+    let base = taken.frames.load(Ordering::Relaxed);
+    drive(
+        epoch,
+        Arc::clone(&sinks),
+        Pace::Offered(OFFERED_PER_S),
+        Arc::clone(&taken),
+        wall,
+    )
+    .await;
+    let offered_rate = (taken.frames.load(Ordering::Relaxed) - base) as f64
+        / ((taken.last_ns.load(Ordering::Relaxed) - t0) as f64 * 1e-9);
+    let mut l = std::mem::take(&mut *taken.latencies.lock().unwrap());
     l.sort_unstable();
-    let p99 = l.get(l.len() * 99 / 100).copied().unwrap_or(0);
-    for r in robots {
+    let (p50, p99) = (percentile(&l, 50), percentile(&l, 99));
+
+    for r in &robots {
         r.close();
     }
-    (rate, Duration::from_nanos(p99))
+    drop(shards);
+
+    // (c) The same number of the same frames through one bare channel.
+    let bare = bare_channel(epoch, links, sent).await;
+    Row {
+        links,
+        saturation,
+        offered_rate,
+        p50,
+        p99,
+        bare,
+    }
+}
+
+/// Frames per second through one tokio channel from the same source (a thread) to a task on this
+/// arbiter that only counts them: `count` frames, addressed round-robin as for `links` robots.
+async fn bare_channel(epoch: Instant, links: usize, count: u64) -> f64 {
+    let (tx, mut rx) = mpsc::unbounded_channel::<LinkEvent>();
+    let taken = Arc::new(Taken::default());
+    let counter = Arc::clone(&taken);
+    actix::spawn(async move {
+        while rx.recv().await.is_some() {
+            let n = counter.frames.fetch_add(1, Ordering::Relaxed) + 1;
+            if n == count {
+                counter
+                    .last_ns
+                    .store(epoch.elapsed().as_nanos() as u64, Ordering::Relaxed);
+            }
+        }
+    });
+    let t0 = epoch.elapsed().as_nanos() as u64;
+    let t = Arc::clone(&taken);
+    let (done, finished) = tokio::sync::oneshot::channel();
+    std::thread::spawn(move || {
+        for k in 0..count {
+            let id = (k % links as u64) as u16 + 1;
+            let seq = (k / links as u64) as i32;
+            let _ = tx.send(LinkEvent::Packet(state_frame(epoch, id, seq)));
+        }
+        let _ = done.send(());
+    });
+    finished.await.expect("the source thread finishes");
+    while t.frames.load(Ordering::Relaxed) < count {
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    count as f64 / ((t.last_ns.load(Ordering::Relaxed) - t0) as f64 * 1e-9)
 }
 
 fn main() {
     let quick = cfg!(debug_assertions);
+    let wall = if quick {
+        Duration::from_millis(20)
+    } else {
+        Duration::from_secs(2)
+    };
     let system = actix::System::new();
     system.block_on(async {
-        println!("links    packets/s into the world model    p99 frame -> model");
-        let mut base = None;
+        let shards = std::thread::available_parallelism().map_or(1, |n| n.get());
+        println!(
+            "ingest: {shards} shard arbiter(s), offered load {OFFERED_PER_S:.0} frames/s, \
+             {:.1} s per phase",
+            wall.as_secs_f64()
+        );
+        println!(
+            " links  saturation frames/s  bare channel frames/s  fraction   \
+             at offered: frames/s      p50 µs     p99 µs"
+        );
+        // `INGEST_LINKS=10000` measures one link count only (for profiling).
+        let only: Option<usize> = std::env::var("INGEST_LINKS")
+            .ok()
+            .and_then(|v| v.parse().ok());
         for links in [10usize, 100, 1_000, 10_000] {
-            let wall = if quick {
-                Duration::from_millis(100)
-            } else {
-                Duration::from_secs(2)
-            };
-            let (rate, p99) = measure(links, wall).await;
-            let ratio = rate / *base.get_or_insert(rate);
+            if only.is_some_and(|n| n != links) {
+                continue;
+            }
+            let r = measure(links, wall).await;
             println!(
-                "{links:6}   {rate:14.0}  ({ratio:4.2}x of 10 links)   {:10.1} µs",
-                p99.as_secs_f64() * 1e6
+                "{:6}  {:19.0}  {:21.0}  {:8.3}   {:19.0}  {:10.1} {:10.1}",
+                r.links,
+                r.saturation,
+                r.bare,
+                r.saturation / r.bare,
+                r.offered_rate,
+                r.p50.as_secs_f64() * 1e6,
+                r.p99.as_secs_f64() * 1e6
             );
         }
     });

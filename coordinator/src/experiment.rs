@@ -13,7 +13,7 @@ use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
 use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::{Discovered, Discoverer};
-use robot_actor::{Pose, Robot, RobotConfig};
+use robot_actor::{Pose, Robot, RobotConfig, Shards};
 use simulator::runtime::{self, Pace};
 use simulator::world::{file, presets, Track, World};
 use simulator::{BodyFault, SimConfig, Simulation};
@@ -311,7 +311,19 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     let observer = hooks.observer(world, sim.clone());
     // A robot that cannot answer within the whole time limit will not be waited for longer.
     let deadline = HELLO_DEADLINE.min(plan.duration);
-    let robots = connect_all(&discovered, origins.as_deref(), world, &observer, deadline).await?;
+    // On a paused clock everything stays on this thread: simulated time advances only when every
+    // task waits, which other threads' tasks cannot take part in. Otherwise the robots are
+    // spread over a shard per core (stopped when this returns, after the robots are closed).
+    let shards = (!plan.paused_clock()).then(Shards::per_core);
+    let robots = connect_all(
+        &discovered,
+        origins.as_deref(),
+        world,
+        &observer,
+        deadline,
+        shards.as_ref(),
+    )
+    .await?;
     write_settings(&robots, &plan.settings).await?;
     let (supervisor, model, done) = start_supervisor(&plan, &setup, &robots);
     hooks.serve_panel(&supervisor, &robots, world).await?;
@@ -872,6 +884,7 @@ async fn connect_all(
     world: &World,
     observer: &actix::Addr<Observer>,
     deadline: Duration,
+    shards: Option<&Shards>,
 ) -> Result<Vec<(u16, Robot)>> {
     let mut robots: Vec<(u16, Robot, String)> = Vec::new();
     for (i, d) in found.iter().enumerate() {
@@ -879,7 +892,10 @@ async fn connect_all(
             origin: origins.and_then(|o| o.get(i).copied()).unwrap_or_default(),
             ..RobotConfig::default()
         };
-        let robot = Robot::start(Arc::clone(&d.connector), config);
+        let robot = match shards {
+            Some(shards) => shards.start(Arc::clone(&d.connector), config),
+            None => Robot::start(Arc::clone(&d.connector), config),
+        };
         // Before any packet: replay checks the observer's view after each robot's k-th update.
         robot.subscribe(observer.clone().recipient());
         robot.subscribe_events(observer.clone().recipient());

@@ -13,7 +13,7 @@ use behaviours::{
     MoveOutcome, Verdict, WorldSnapshot,
 };
 use robot_actor::actor::{Command, Enqueue};
-use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateUpdated};
+use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateBatch, StateUpdated};
 use simulator::world::Track;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
@@ -500,7 +500,8 @@ impl Actor for Supervisor {
     fn started(&mut self, ctx: &mut Self::Context) {
         self.started_at = Instant::now();
         for (id, robot) in &self.robots {
-            robot.subscribe(ctx.address().recipient());
+            // In batches: robots on shard arbiters send one message per pass of their arbiter.
+            robot.subscribe_batches(ctx.address().recipient());
             robot.subscribe_events(ctx.address().recipient());
             self.model.add(*id);
         }
@@ -511,6 +512,22 @@ impl Actor for Supervisor {
 impl Handler<StateUpdated> for Supervisor {
     type Result = ();
     fn handle(&mut self, u: StateUpdated, ctx: &mut Context<Self>) {
+        self.on_state(u, ctx);
+    }
+}
+
+impl Handler<StateBatch> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, batch: StateBatch, ctx: &mut Context<Self>) {
+        for u in batch.0 {
+            self.on_state(u, ctx);
+        }
+    }
+}
+
+impl Supervisor {
+    /// One state update: into the world model, then the localisation's consequences.
+    fn on_state(&mut self, u: StateUpdated, ctx: &mut Context<Self>) {
         let transition = self.model.apply(&u);
         if let Some(e) = self.reconnected.remove(&u.robot_id) {
             self.tell_behaviour(e, ctx);

@@ -7,10 +7,12 @@ pub mod link;
 pub mod odometry;
 pub mod robot;
 pub mod settings;
+pub mod shard;
 
 pub use actor::{
     Incompatibility, MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind,
-    StateUpdated, WriteSettings,
+    StateBatch, StateUpdated, WriteSettings,
 };
 pub use odometry::{Odometry, Pose};
 pub use robot::{CallError, Robot};
+pub use shard::Shards;

@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use actix::{Actor, Addr, MailboxError, Recipient};
+use actix::{Actor, Addr, ArbiterHandle, MailboxError, Recipient};
 use futures::future::BoxFuture;
 use futures::FutureExt;
 use protocol::packets::{Hello, MoveOutcome};
@@ -39,6 +39,19 @@ impl Robot {
         }
     }
 
+    /// Starts a robot actor on `arbiter` (see [`crate::Shards`]).
+    pub fn start_in(
+        arbiter: &ArbiterHandle,
+        connector: Arc<dyn Connector>,
+        config: RobotConfig,
+    ) -> Self {
+        Self {
+            addr: RobotActor::start_in_arbiter(arbiter, move |_| {
+                RobotActor::new(connector, config)
+            }),
+        }
+    }
+
     /// The actor's address, for messages this handle does not wrap.
     pub fn addr(&self) -> &Addr<RobotActor> {
         &self.addr
@@ -62,6 +75,12 @@ impl Robot {
     /// Calls `on_state` with every reflected state.
     pub fn subscribe(&self, on_state: Recipient<StateUpdated>) {
         self.addr.do_send(Subscribe(on_state));
+    }
+
+    /// Sends every reflected state to `on_states` in [`StateBatch`]es: one per pass of the robot's
+    /// arbiter when it is on a shard, one per state otherwise.
+    pub fn subscribe_batches(&self, on_states: Recipient<StateBatch>) {
+        self.addr.do_send(SubscribeBatches(on_states));
     }
 
     /// Calls `on_event` with every robot event.

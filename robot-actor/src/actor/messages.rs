@@ -35,6 +35,11 @@ pub struct RobotConfig {
     pub max_backoff: Duration,
     /// Where odometry starts.
     pub origin: Pose,
+    /// Batch subscribers get this robot's states gathered with its arbiter's other robots', once
+    /// per pass of the arbiter, instead of a message per state: for robots on shard arbiters
+    /// (see [`crate::Shards`]), whose subscriber is on another thread. Off, each state is sent at
+    /// once, as a batch of one, so a single-threaded (paused-clock) run keeps its interleaving.
+    pub batch_states: bool,
 }
 
 impl Default for RobotConfig {
@@ -49,6 +54,7 @@ impl Default for RobotConfig {
             min_backoff: Duration::from_millis(100),
             max_backoff: Duration::from_secs(2),
             origin: Pose::default(),
+            batch_states: false,
         }
     }
 }

@@ -20,6 +20,7 @@ use tracing::{debug, info, warn};
 use crate::link::{Connector, LinkEvent};
 use crate::odometry::{Geometry, Odometry};
 
+mod batch;
 mod error;
 mod greeting;
 mod liveness;
@@ -27,6 +28,7 @@ mod messages;
 mod moves;
 mod settings;
 
+pub use batch::{StateBatch, SubscribeBatches};
 pub use error::{incompatibilities, Incompatibility, RobotError};
 pub use liveness::LinkStats;
 pub use messages::{
@@ -83,6 +85,8 @@ impl Reflected {
 struct Subscribers {
     /// Every reflected state, with its odometry pose.
     states: Vec<Recipient<StateUpdated>>,
+    /// The same, in batches.
+    batches: Vec<Recipient<StateBatch>>,
     /// Every event.
     events: Vec<Recipient<RobotEvent>>,
 }
@@ -143,6 +147,8 @@ impl RobotActor {
     }
 
     fn emit(&self, kind: RobotEventKind) {
+        // States still waiting in this thread's batches happened before the event.
+        batch::flush();
         let e = RobotEvent {
             robot_id: self.robot_id(),
             at: Instant::now(),
@@ -153,14 +159,14 @@ impl RobotActor {
         }
     }
 
-    fn publish_state(&mut self, reduced: bool) {
+    fn publish_state(&mut self, reduced: bool, at: Instant) {
         let pose = self.odometry.update(
             self.reflected.state.encoders.left_ticks,
             self.reflected.state.encoders.right_ticks,
         );
         let u = StateUpdated {
             robot_id: self.robot_id(),
-            at: Instant::now(),
+            at,
             state: self.reflected.state,
             reduced,
             pose,
@@ -168,19 +174,28 @@ impl RobotActor {
         for s in &self.subscribers.states {
             s.do_send(u);
         }
+        for s in &self.subscribers.batches {
+            if self.config.batch_states {
+                batch::push(s, u);
+            } else {
+                s.do_send(StateBatch(vec![u]));
+            }
+        }
     }
 
-    fn handle_packet(&mut self, packet: AnyPacket) {
+    /// `at`: when the packet arrived (one clock read per packet: at thousands of links per core
+    /// each read counts).
+    fn handle_packet(&mut self, packet: AnyPacket, at: Instant) {
         match packet {
             AnyPacket::State(s) => {
                 self.reflected.state = s;
-                self.reflected.full_at = Some(Instant::now());
-                self.publish_state(false);
+                self.reflected.full_at = Some(at);
+                self.publish_state(false, at);
             }
             AnyPacket::ReducedState(r) => {
                 self.reflected.merge_reduced(r);
-                self.reflected.reduced_at = Some(Instant::now());
-                self.publish_state(true);
+                self.reflected.reduced_at = Some(at);
+                self.publish_state(true, at);
             }
             AnyPacket::Hello(h) => self.on_hello(h),
             AnyPacket::Pong(p) => self.link.on_pong(p.seq),
@@ -269,11 +284,12 @@ impl StreamHandler<(u64, LinkEvent)> for RobotActor {
         }
         match event {
             LinkEvent::Packet(bytes) => {
-                self.link.last_seen = Some(Instant::now());
+                let now = Instant::now();
+                self.link.last_seen = Some(now);
                 match Frame::parse(&bytes) {
                     Ok(frame) => {
                         self.link.stats.packets_in += 1;
-                        self.handle_packet(frame.packet());
+                        self.handle_packet(frame.packet(), now);
                     }
                     Err(e) => {
                         self.link.stats.checksum_errors += 1;
@@ -298,6 +314,13 @@ impl Handler<Subscribe> for RobotActor {
     type Result = ();
     fn handle(&mut self, msg: Subscribe, _: &mut Self::Context) {
         self.subscribers.states.push(msg.0);
+    }
+}
+
+impl Handler<SubscribeBatches> for RobotActor {
+    type Result = ();
+    fn handle(&mut self, msg: SubscribeBatches, _: &mut Self::Context) {
+        self.subscribers.batches.push(msg.0);
     }
 }
 

@@ -1,0 +1,162 @@
+//! Robot actors on shard arbiters: every state reaches a batch subscriber, in order per robot, and
+//! a robot's event arrives after the states it published before it and before those after it.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use actix::prelude::*;
+use futures::future::BoxFuture;
+use futures::FutureExt;
+use protocol::packets;
+use protocol::RobotState;
+use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
+use robot_actor::{RobotConfig, RobotEvent, RobotEventKind, Shards, StateBatch};
+use tokio::sync::mpsc;
+
+/// Every link's packet queue, by robot id, as the robots connect.
+type Feed = Arc<Mutex<Vec<(u16, mpsc::UnboundedSender<LinkEvent>)>>>;
+
+/// A robot that says hello, then sends whatever the test pushes into its queue.
+struct Scripted {
+    id: u16,
+    feed: Feed,
+}
+
+impl Connector for Scripted {
+    fn peer(&self) -> String {
+        format!("scripted://{}", self.id)
+    }
+    fn connect(&self) -> BoxFuture<'static, Result<Link, LinkError>> {
+        let (tx, mut from_host) = mpsc::channel::<Vec<u8>>(1024);
+        let (events, rx) = mpsc::unbounded_channel();
+        let mut settings = protocol::Settings::default();
+        settings.identity.robot_id = self.id;
+        let _ = events.send(LinkEvent::Packet(frame(&packets::Hello::new(
+            &settings,
+            [0, 1, 0],
+        ))));
+        self.feed.lock().unwrap().push((self.id, events));
+        tokio::spawn(async move { while from_host.recv().await.is_some() {} });
+        async move {
+            Ok(Link {
+                peer: "scripted".into(),
+                tx,
+                rx,
+                counters: Arc::new(LinkCounters::default()),
+            })
+        }
+        .boxed()
+    }
+}
+
+fn frame<P: protocol::Packet>(p: &P) -> Vec<u8> {
+    let (buf, n) = protocol::frame::encode_to_array(p);
+    buf[..n].to_vec()
+}
+
+/// What the subscriber heard, in order: a robot's state (by its encoder count), or its event.
+#[derive(Debug)]
+enum Heard {
+    State(u16, i32),
+    Event(u16),
+}
+
+struct Collector {
+    to: mpsc::UnboundedSender<Heard>,
+}
+
+impl Actor for Collector {
+    type Context = Context<Self>;
+}
+
+impl Handler<StateBatch> for Collector {
+    type Result = ();
+    fn handle(&mut self, batch: StateBatch, _: &mut Context<Self>) {
+        for u in batch.0 {
+            let _ = self
+                .to
+                .send(Heard::State(u.robot_id, u.state.encoders.left_ticks));
+        }
+    }
+}
+
+impl Handler<RobotEvent> for Collector {
+    type Result = ();
+    fn handle(&mut self, e: RobotEvent, _: &mut Context<Self>) {
+        if e.kind == RobotEventKind::WatchdogStop {
+            let _ = self.to.send(Heard::Event(e.robot_id));
+        }
+    }
+}
+
+#[actix_rt::test]
+async fn sharded_robots_deliver_every_state_in_order_and_events_between_them() {
+    const ROBOTS: u16 = 6;
+    const STATES: i32 = 200;
+    let shards = Shards::new(2);
+    let feed: Feed = Arc::new(Mutex::new(Vec::new()));
+    let (to, mut heard) = mpsc::unbounded_channel();
+    let collector = Collector { to }.start();
+    let mut robots = Vec::new();
+    for id in 1..=ROBOTS {
+        let robot = shards.start(
+            Arc::new(Scripted {
+                id,
+                feed: Arc::clone(&feed),
+            }),
+            RobotConfig::default(),
+        );
+        robot.subscribe_batches(collector.clone().recipient());
+        robot.subscribe_events(collector.clone().recipient());
+        robots.push(robot);
+    }
+    for r in &robots {
+        r.connected().await.expect("hello");
+    }
+    let sinks = feed.lock().unwrap().clone();
+    // Interleaved over the robots, with each robot's event after its first half of states.
+    for seq in 1..=STATES {
+        for (_, sink) in &sinks {
+            let mut s = RobotState::default();
+            s.encoders.left_ticks = seq;
+            let _ = sink.send(LinkEvent::Packet(frame(&s)));
+            if seq == STATES / 2 {
+                let _ = sink.send(LinkEvent::Packet(frame(&packets::WatchdogStop {
+                    silent_ms: 0,
+                })));
+            }
+        }
+    }
+    let mut last = vec![0i32; usize::from(ROBOTS) + 1];
+    let mut events = 0;
+    let expected = usize::from(ROBOTS) * (STATES as usize + 1);
+    for _ in 0..expected {
+        let h = tokio::time::timeout(Duration::from_secs(20), heard.recv())
+            .await
+            .expect("every state and event arrives")
+            .expect("the collector lives");
+        match h {
+            Heard::State(id, seq) => {
+                assert_eq!(
+                    seq,
+                    last[usize::from(id)] + 1,
+                    "robot {id}'s states in order"
+                );
+                last[usize::from(id)] = seq;
+            }
+            Heard::Event(id) => {
+                assert_eq!(
+                    last[usize::from(id)],
+                    STATES / 2,
+                    "robot {id}'s event between its states"
+                );
+                events += 1;
+            }
+        }
+    }
+    assert_eq!(events, usize::from(ROBOTS));
+    assert!(last[1..].iter().all(|&s| s == STATES));
+    for r in &robots {
+        r.close();
+    }
+}
