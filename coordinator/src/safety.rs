@@ -107,7 +107,9 @@ impl Safety {
             let dx = (lo.0 - q.x).max(q.x - hi.0).max(0.0);
             let dy = (lo.1 - q.y).max(q.y - hi.1).max(0.0);
             // NaN poses and margins compare false and so count as near: the exact test decides.
-            !(dx.hypot(dy) > mine_reach + half_diag(their_margin) + 1e-3)
+            let gap = dx.hypot(dy);
+            let reach = mine_reach + half_diag(their_margin) + 1e-3;
+            gap <= reach || gap.is_nan() || reach.is_nan()
         };
         let widest = world
             .robots
