@@ -568,7 +568,10 @@ mod tests {
             ("line_follow", &["laps", "spacing", "speed", "spread"]),
             ("square_walk", &["side"]),
             ("token_ring", &["reverse", "rounds", "speed"]),
-            ("traffic_control", &["goals", "quota", "replan", "segment_m", "tasks"]),
+            (
+                "traffic_control",
+                &["goals", "quota", "replan", "segment_m", "tasks"],
+            ),
         ];
         assert_eq!(
             registry.names(),
