@@ -75,6 +75,8 @@ pub struct Plan {
     pub kicks: Vec<Kick>,
     /// Settings written to every robot before the experiment starts.
     pub settings: Vec<SettingWrite>,
+    /// Clock steps (1 ms) per physics step of simulated robots: 1 is physics at 1 kHz.
+    pub physics_every: u32,
 }
 
 /// One robot setting the coordinator writes to every robot before the experiment starts,
@@ -158,6 +160,7 @@ impl Plan {
             body_faults: Vec::new(),
             kicks: Vec::new(),
             settings: Vec::new(),
+            physics_every: 1,
         }
     }
 
@@ -514,6 +517,7 @@ async fn start_simulation(
         world.clone(),
         SimConfig {
             seed: Some(plan.seed),
+            physics_every: plan.physics_every,
             ..SimConfig::default()
         },
     );

@@ -173,9 +173,14 @@ impl<B: Board> Firmware<B> {
         }
     }
 
+    /// When the watchdog would stop a moving robot: a board that sleeps until
+    /// [`next_deadline`](Self::next_deadline) wakes exactly then, not every millisecond.
     fn watchdog_deadline(&self) -> Option<Instant> {
-        None.or(Some(self.now + Duration::from_millis(1)))
-            .filter(|_| self.settings.watchdog.timeout_ms != 0 && self.drive != Drive::Idle)
+        if self.drive == Drive::Idle && self.locomotion.is_empty() {
+            return None;
+        }
+        let timeout = Duration::from_millis(u64::from(self.settings.watchdog.timeout_ms));
+        self.watchdog.deadline(timeout)
     }
 
     /// Timer entry point: runs every scheduler channel that is due and checks the watchdog.

@@ -26,6 +26,26 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
     Ok(secs)
 }
 
+/// Physics rates a run may ask for, Hz: each divides the 1 kHz clock, and none is so coarse that
+/// a robot at full speed moves more than a few millimetres per physics step.
+pub const PHYSICS_HZ: [u32; 4] = [1000, 500, 250, 200];
+
+/// Parses a physics rate in Hz (one of [`PHYSICS_HZ`]) into clock steps per physics step; for
+/// clap's `value_parser`.
+pub fn parse_physics_hz(text: &str) -> Result<u32, String> {
+    let choices = PHYSICS_HZ.map(|hz| hz.to_string()).join(", ");
+    let hz: u32 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a rate in Hz: expected one of {choices}"))?;
+    if !PHYSICS_HZ.contains(&hz) {
+        return Err(format!(
+            "{hz} Hz: the physics rate must be one of {choices}"
+        ));
+    }
+    Ok(1000 / hz)
+}
+
 /// A kick from the command line: robot id, when (simulated time from the start), and the
 /// displacement (metres along x and y, radians counter-clockwise).
 #[derive(Clone, Copy, Debug, PartialEq)]

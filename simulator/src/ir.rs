@@ -179,10 +179,12 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
         for (side, sign) in [(Side::Front, 1.0), (Side::Rear, -1.0)] {
             let rx = other.ahead(sign * other.half[0]);
             let v = [rx[0] - origin[0], rx[1] - origin[1]];
-            let d = v[0].hypot(v[1]);
-            if d > beam.range || d < 1e-9 {
+            // Most receivers near the grid cell are out of reach: reject them before the root.
+            let d2 = v[0] * v[0] + v[1] * v[1];
+            if d2 > beam.range * beam.range || d2 < 1e-18 {
                 continue;
             }
+            let d = d2.sqrt();
             let off_axis = angle_between(dir, v);
             if off_axis > beam.cone_half + (RECEIVER_RADIUS / d).atan() {
                 continue;

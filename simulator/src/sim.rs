@@ -40,8 +40,12 @@ const PARALLEL_FROM: usize = 256;
 pub struct SimConfig {
     /// Seed of every noise and jitter stream (the world's own seed when `None`).
     pub seed: Option<u64>,
-    /// Physics and firmware tick step.
+    /// The clock's step: link packets, encoder edges and firmware deadlines are served on it.
     pub dt: std::time::Duration,
+    /// Clock steps per physics step (motors, tyres, rapier, body sensors); 1 runs physics on
+    /// every step. Between physics steps the line and colour sensors look at the floor where
+    /// the body is at that instant, interpolated along the step.
+    pub physics_every: u32,
     /// The robot model.
     pub spec: RobotSpec,
     /// Settings image every robot boots with (its id is set per robot).
@@ -53,6 +57,7 @@ impl Default for SimConfig {
         Self {
             seed: None,
             dt: std::time::Duration::from_millis(1),
+            physics_every: 1,
             spec: RobotSpec::default(),
             settings: Settings::default(),
         }
@@ -137,6 +142,9 @@ pub struct SimRobot {
     still_since_ns: Option<u64>,
     silences: Vec<HostSilence>,
     settings_updates: u32,
+    /// Line sensor centre and heading's (sin, cos) at the start and the end of the physics step
+    /// under way, for the floor to be looked at in between.
+    sensor_path: [([f64; 2], (f64, f64)); 2],
 }
 
 /// How long the host must be silent before the simulator logs a [`HostSilence`]: well over the
@@ -243,6 +251,21 @@ impl SimRobot {
             None => {}
         }
     }
+    /// Puts the line sensor where the body is at `now_ns` within the physics step from `start`
+    /// to `end`, along a straight line between its ends: a step is a few millimetres at most.
+    fn place_floor_sensor(&mut self, now_ns: u64, start: u64, end: u64) {
+        let f = (now_ns.saturating_sub(start) as f64 / end.saturating_sub(start).max(1) as f64)
+            .min(1.0);
+        let [(p0, (s0, c0)), (p1, (s1, c1))] = self.sensor_path;
+        let lerp = |a: f64, b: f64| a + (b - a) * f;
+        let board = self.firmware.board_mut();
+        if let Some(view) = &mut board.floor {
+            view.sensor = [lerp(p0[0], p1[0]), lerp(p0[1], p1[1])];
+            view.sin_cos = (lerp(s0, s1), lerp(c0, c1));
+            board.moved();
+        }
+    }
+
     /// Battery terminal voltage, volts.
     pub fn battery_v(&self) -> f64 {
         f64::from(self.firmware.board().battery_mv) / 1000.0
@@ -270,6 +293,9 @@ pub struct Simulation {
     link_model: LinkModel,
     dt_ns: u64,
     now_ns: u64,
+    physics_every: u64,
+    /// Start and end of the physics step under way, nanoseconds.
+    physics_span: (u64, u64),
     robots: Vec<SimRobot>,
     obstacles: Vec<SimObstacle>,
     piconets: Vec<Piconet>,
@@ -421,6 +447,10 @@ impl Simulation {
                 still_since_ns: None,
                 silences: Vec::new(),
                 settings_updates: 0,
+                sensor_path: [(
+                    [start.position.x, start.position.y],
+                    start.heading_rad.sin_cos(),
+                ); 2],
             });
         }
         owners.sort_by_key(|&(c, _)| c.into_raw_parts());
@@ -434,7 +464,7 @@ impl Simulation {
         };
         let piconets = vec![Piconet::default(); robots.len().div_ceil(per).max(1)];
         let mut params = IntegrationParameters {
-            dt: config.dt.as_secs_f32(),
+            dt: config.dt.as_secs_f32() * config.physics_every.max(1) as f32,
             ..IntegrationParameters::default()
         };
         // Centimetre scale: allowed penetration and sleep thresholds shrink to suit 48 mm robots.
@@ -447,6 +477,8 @@ impl Simulation {
             link_model,
             dt_ns: config.dt.as_nanos() as u64,
             now_ns: 0,
+            physics_every: u64::from(config.physics_every.max(1)),
+            physics_span: (0, 0),
             robots,
             obstacles,
             piconets,
@@ -487,6 +519,11 @@ impl Simulation {
     /// The step length.
     pub fn dt(&self) -> std::time::Duration {
         std::time::Duration::from_nanos(self.dt_ns)
+    }
+
+    /// The physics step's length: a whole number of clock steps.
+    pub fn physics_dt(&self) -> std::time::Duration {
+        std::time::Duration::from_nanos(self.physics_dt_ns())
     }
 
     /// Every robot, in world-file order.
@@ -676,10 +713,29 @@ impl Simulation {
         }
     }
 
-    /// Advances the world by one step.
+    /// Length of one physics step, nanoseconds.
+    fn physics_dt_ns(&self) -> u64 {
+        self.dt_ns * self.physics_every
+    }
+
+    /// Advances the world by one step of the clock.
     pub fn step(&mut self) {
-        let dt = self.dt_ns as f64 * 1e-9;
+        // Physics starts on the step after the firmware's boot tick and every `physics_every`
+        // steps from there, so a duty the main loop sets on its period moves the body at once.
+        let k = self.physics_every;
+        if (self.now_ns / self.dt_ns) % k == 1 % k {
+            self.physics_step();
+        }
+        self.now_ns += self.dt_ns;
+        self.serve_firmware();
+    }
+
+    /// Motors, tyres, rapier and box friction over one physics step from now, then the body
+    /// sensors at its end.
+    fn physics_step(&mut self) {
+        let dt = self.physics_dt_ns() as f64 * 1e-9;
         let t0 = self.now_ns;
+        self.physics_span = (t0, t0 + self.physics_dt_ns());
         let spec = &self.spec;
         let bodies = &self.bodies;
         let drive = |r: &mut SimRobot| drive_robot(spec, r, &bodies[r.body], t0, dt);
@@ -716,12 +772,25 @@ impl Simulation {
             &(),
         );
         self.floor_friction(&obstacle_start, dt);
-        self.now_ns += self.dt_ns;
-        self.record_contacts();
+        self.record_contacts(t0 + self.dt_ns);
         self.read_sensors();
+    }
+
+    /// Serves every firmware at the clock's new time: link packets, encoder edges that have
+    /// happened, and a tick where one of its deadlines is due; then IR and outgoing packets.
+    fn serve_firmware(&mut self) {
         let now = Instant::from_nanos(self.now_ns);
         let now_ns = self.now_ns;
         let radius_m = self.spec.wheel_radius_m();
+        let (span_start, span_end) = self.physics_span;
+        // The step's last tick takes every edge it made, as capture rounding can date one a
+        // fraction of a microsecond after the step's end.
+        let edges_until = if now_ns >= span_end {
+            Instant::from_nanos(u64::MAX)
+        } else {
+            now
+        };
+        let interpolate = self.physics_every > 1;
         let tick = |r: &mut SimRobot| {
             let mut heard = false;
             while let Some(p) = r.link.recv_at_robot(now_ns) {
@@ -732,7 +801,22 @@ impl Simulation {
                 heard = true;
             }
             r.watch_host(now_ns, heard, radius_m);
-            r.firmware.tick(now);
+            // Edges reach the firmware as its capture interrupt would: once they have happened.
+            let mut edges = std::mem::take(&mut r.firmware.board_mut().edges);
+            edges.retain(|e| {
+                let happened = e.at <= edges_until;
+                if happened {
+                    r.firmware.on_encoder_edge(e.wheel, e.at);
+                }
+                !happened
+            });
+            r.firmware.board_mut().edges = edges;
+            if r.firmware.next_deadline().is_some_and(|d| d <= now) {
+                if interpolate {
+                    r.place_floor_sensor(now_ns, span_start, span_end);
+                }
+                r.firmware.tick(now);
+            }
         };
         if self.robots.len() >= PARALLEL_FROM {
             self.robots.par_iter_mut().for_each(tick);
@@ -806,7 +890,7 @@ impl Simulation {
             .map(|k| self.owners[k].1)
     }
 
-    fn record_contacts(&mut self) {
+    fn record_contacts(&mut self, now_ns: u64) {
         let mut now_active = Vec::new();
         for pair in self.narrow_phase.contact_pairs() {
             if !pair.has_any_active_contact {
@@ -830,7 +914,7 @@ impl Simulation {
         }
         now_active.sort();
         now_active.dedup();
-        let at_s = self.now_ns as f64 * 1e-9;
+        let at_s = now_ns as f64 * 1e-9;
         for k in &now_active {
             if self.active_contacts.binary_search(k).is_err() {
                 self.contacts.push(Contact { kind: *k, at_s });
@@ -841,7 +925,7 @@ impl Simulation {
 
     /// Reads every robot's sensors off the world at the current time.
     fn read_sensors(&mut self) {
-        let dt = self.dt_ns as f64 * 1e-9;
+        let dt = self.physics_dt_ns() as f64 * 1e-9;
         let spec = &self.spec;
         let battery = &spec.battery;
         let bodies = &self.bodies;
@@ -862,12 +946,14 @@ impl Simulation {
             let vel = Vector2::new(f64::from(b.linvel().x), f64::from(b.linvel().y));
             let acc = (vel - r.last_velocity) / dt;
             r.last_velocity = vel;
+            let sensor = [
+                x + c * spec.line_sensor_ahead_m,
+                y + s * spec.line_sensor_ahead_m,
+            ];
+            r.sensor_path = [r.sensor_path[1], (sensor, (s, c))];
             let board = r.firmware.board_mut();
             if let Some(f) = &mut board.floor {
-                f.sensor = [
-                    x + c * spec.line_sensor_ahead_m,
-                    y + s * spec.line_sensor_ahead_m,
-                ];
+                f.sensor = sensor;
                 f.sin_cos = (s, c);
             }
             board.moved();

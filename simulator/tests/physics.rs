@@ -4,7 +4,13 @@ mod common;
 
 use std::time::Duration;
 
-use common::{connected, run, send, world};
+use common::{connected, connected_with, run, send, world};
+
+/// Physics every clock step (1 kHz) and every second (500 Hz): moves, turns and pushes must come
+/// out the same at both.
+const PHYSICS_RATES: [u32; 2] = [1, 2];
+/// With 200 Hz (every fifth step, the coarsest the CLI offers): line following must still work.
+const LINE_RATES: [u32; 3] = [1, 2, 5];
 use firmware::hal::Side;
 use protocol::packets::*;
 use protocol::AnyPacket;
@@ -26,7 +32,13 @@ heading_deg = 0
 
 #[test]
 fn square_walk_closes_in_physics() {
-    let mut sim = connected(world(OPEN), 1);
+    for every in PHYSICS_RATES {
+        square_walk(every);
+    }
+}
+
+fn square_walk(physics_every: u32) {
+    let mut sim = connected_with(world(OPEN), 1, physics_every);
     for i in 0..4u16 {
         send(
             &mut sim,
@@ -55,7 +67,9 @@ fn square_walk_closes_in_physics() {
     let p = sim.robots()[0].pose();
     let err_mm = (p.x - 0.5).hypot(p.y - 0.5) * 1e3;
     let heading = (p.theta.to_degrees() - 360.0).abs();
-    eprintln!("square: {err_mm:.1} mm, {heading:.1} deg, pose {p:?}, done at {done:?}");
+    eprintln!(
+        "physics every {physics_every} ms: square {err_mm:.1} mm, {heading:.1} deg, pose {p:?}, done at {done:?}"
+    );
     assert!(err_mm < 10.0, "{err_mm} mm");
     assert!(heading < 5.0, "{heading} deg");
 }
@@ -66,8 +80,14 @@ fn unwrap_angle(prev: f64, now: f64) -> f64 {
 
 #[test]
 fn line_following_laps_the_oval_three_times() {
+    for every in LINE_RATES {
+        lap_the_oval(every);
+    }
+}
+
+fn lap_the_oval(physics_every: u32) {
     let oval = simulator::world::presets::preset("oval").unwrap();
-    let mut sim = connected(oval, 3);
+    let mut sim = connected_with(oval, 3, physics_every);
     for i in 0..2 {
         send(
             &mut sim,
@@ -119,7 +139,7 @@ fn line_following_laps_the_oval_three_times() {
         .zip(start)
         .map(|(t, s)| (t - s) / std::f64::consts::TAU)
         .collect();
-    eprintln!("laps {laps:?} in {:?}, line lost {lost} times, sensor at most {worst_mm:.1} mm off the tape", sim.now());
+    eprintln!("physics every {physics_every} ms: laps {laps:?} in {:?}, line lost {lost} times, sensor at most {worst_mm:.1} mm off the tape", sim.now());
     assert!(laps.iter().all(|&l| l >= 3.0), "laps {laps:?} in {limit:?}");
     assert_eq!(lost, 0, "line lost");
     assert!(
@@ -146,8 +166,8 @@ fn pusher_world(robots: &[(u16, f64)]) -> simulator::World {
     w
 }
 
-fn push_for(world: simulator::World, secs: u64) -> f64 {
-    let mut sim = connected(world, 5);
+fn push_for(world: simulator::World, secs: u64, physics_every: u32) -> f64 {
+    let mut sim = connected_with(world, 5, physics_every);
     for i in 0..sim.robots().len() {
         // Full power straight ahead: the motor-power teleop, no speed loop to back off.
         send(
@@ -165,15 +185,17 @@ fn push_for(world: simulator::World, secs: u64) -> f64 {
 
 #[test]
 fn one_robot_cannot_move_the_heavy_box_and_two_can() {
-    let one = push_for(pusher_world(&[(1, 0.0)]), 10);
-    let two = push_for(pusher_world(&[(1, -0.0165), (2, 0.0165)]), 10);
-    eprintln!(
-        "box moved {:.1} mm by one robot, {:.1} mm by two",
-        one * 1e3,
-        two * 1e3
-    );
-    assert!(one < 0.005, "one robot moved it {:.1} mm", one * 1e3);
-    assert!(two > 0.050, "two robots moved it only {:.1} mm", two * 1e3);
+    for every in PHYSICS_RATES {
+        let one = push_for(pusher_world(&[(1, 0.0)]), 10, every);
+        let two = push_for(pusher_world(&[(1, -0.0165), (2, 0.0165)]), 10, every);
+        eprintln!(
+            "physics every {every} ms: box moved {:.1} mm by one robot, {:.1} mm by two",
+            one * 1e3,
+            two * 1e3
+        );
+        assert!(one < 0.005, "one robot moved it {:.1} mm", one * 1e3);
+        assert!(two > 0.050, "two robots moved it only {:.1} mm", two * 1e3);
+    }
 }
 
 const FACING: &str = r#"
@@ -266,9 +288,9 @@ fn a_cut_link_stops_the_robot_within_the_watchdog_timeout() {
     );
 }
 
-fn trajectory(seed: u64) -> Vec<(f64, f64, f64)> {
+fn trajectory(seed: u64, physics_every: u32) -> Vec<(f64, f64, f64)> {
     let oval = simulator::world::presets::preset("oval").unwrap();
-    let mut sim = connected(oval, seed);
+    let mut sim = connected_with(oval, seed, physics_every);
     for i in 0..2 {
         send(
             &mut sim,
@@ -288,11 +310,13 @@ fn trajectory(seed: u64) -> Vec<(f64, f64, f64)> {
 
 #[test]
 fn one_seed_is_bit_identical_and_two_seeds_differ() {
-    let a = trajectory(11);
-    let b = trajectory(11);
-    let c = trajectory(12);
-    assert_eq!(a, b, "same seed, different poses");
-    assert_ne!(a, c, "different seeds, same poses");
+    for every in LINE_RATES {
+        let a = trajectory(11, every);
+        let b = trajectory(11, every);
+        let c = trajectory(12, every);
+        assert_eq!(a, b, "same seed, different poses");
+        assert_ne!(a, c, "different seeds, same poses");
+    }
 }
 
 #[test]

@@ -54,6 +54,11 @@ struct Args {
     /// Pace the simulation to the wall clock instead of running it as fast as possible.
     #[arg(long)]
     realtime: bool,
+    /// Physics rate of simulated robots in Hz: 1000, 500, 250 or 200. Firmware deadlines, link
+    /// packets and encoder edges keep the 1 kHz clock; below 1000 the bodies move in coarser steps
+    /// and the line sensor sees the floor interpolated between them (faster, a little less exact).
+    #[arg(long = "physics-hz", value_name = "HZ", default_value = "1000", value_parser = simulator::cli::parse_physics_hz)]
+    physics_every: u32,
     /// Time limit in seconds (simulated time when simulating), more than 0 and at most 1000000.
     #[arg(long, default_value = "600", value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
     duration: Duration,
@@ -287,6 +292,7 @@ fn plan(args: &Args) -> Result<Plan> {
             })
             .collect(),
         settings: args.settings.clone(),
+        physics_every: args.physics_every,
         ..Plan::sim(behaviour)
     })
 }

@@ -16,10 +16,16 @@ pub fn world(text: &str) -> World {
 
 /// A simulation of `world` with every robot connected.
 pub fn connected(world: World, seed: u64) -> Simulation {
+    connected_with(world, seed, 1)
+}
+
+/// [`connected`] with physics every `physics_every` clock steps.
+pub fn connected_with(world: World, seed: u64, physics_every: u32) -> Simulation {
     let mut sim = Simulation::new(
         world,
         SimConfig {
             seed: Some(seed),
+            physics_every,
             ..SimConfig::default()
         },
     );
