@@ -13,7 +13,7 @@
 
 use std::sync::Arc;
 
-use firmware::hal::{EncoderEdge, IrFrame, Side, Wheel};
+use firmware::hal::{EncoderEdge, IrFrame, Wheel};
 use firmware::{Firmware, Instant};
 use nalgebra::{Point2, Vector2};
 use protocol::settings::Settings;
@@ -34,6 +34,8 @@ const WALL_THICKNESS: f32 = 0.02;
 /// Robot count from which per-robot work runs on every core; each robot touches only its own
 /// state in those phases, so the result does not depend on the thread count.
 const PARALLEL_FROM: usize = 256;
+/// IR beams in one step from which they are traced on every core.
+const PARALLEL_BEAMS_FROM: usize = 64;
 
 /// Options of a simulation run.
 #[derive(Clone, Debug)]
@@ -315,6 +317,8 @@ pub struct Simulation {
     obstacle_boxes: Vec<Obb>,
     active_contacts: Vec<ContactKind>,
     contacts: Vec<Contact>,
+    /// Beams sent this step: (robot, LED, power, frame), kept to reuse the allocation.
+    ir_sent: Vec<(usize, u8, u8, IrFrame)>,
 }
 
 impl Simulation {
@@ -496,6 +500,7 @@ impl Simulation {
             grid: Grid::default(),
             active_contacts: Vec::new(),
             contacts: Vec::new(),
+            ir_sent: Vec::new(),
         };
         sim.read_sensors();
         sim
@@ -1006,40 +1011,58 @@ impl Simulation {
     }
 
     fn propagate_ir(&mut self, now: Instant) {
-        let mut deliveries: Vec<(usize, Side, IrFrame)> = Vec::new();
-        {
-            let scene = Scene {
-                robots: &self.robot_boxes,
-                obstacles: &self.obstacle_boxes,
-                arena: [self.world.arena.width_m, self.world.arena.height_m],
-                grid: &self.grid,
-            };
-            let spec = &self.spec;
-            for (i, r) in self.robots.iter_mut().enumerate() {
-                for (led, power, frame) in r.firmware.board_mut().ir_out.drain(..) {
-                    let Some(&angle) = spec.ir_led_angle_deg.get(usize::from(led)) else {
-                        continue;
-                    };
-                    let level = usize::from(power.clamp(1, 4)) - 1;
-                    let beam = Beam {
-                        robot: i,
-                        led_angle: angle.to_radians(),
-                        range: spec.ir_range_m[level],
-                        cone_half: spec.ir_cone_half_deg.to_radians(),
-                    };
-                    let arrivals = ir::propagate(&scene, &beam);
-                    for (j, side) in arrivals.robots {
-                        deliveries.push((j, side, frame));
-                    }
-                    if let Some(side) = arrivals.reflection {
-                        deliveries.push((i, side, frame));
-                    }
-                }
+        let mut sent = std::mem::take(&mut self.ir_sent);
+        sent.clear();
+        for (i, r) in self.robots.iter_mut().enumerate() {
+            sent.extend(
+                r.firmware
+                    .board_mut()
+                    .ir_out
+                    .drain(..)
+                    .map(|(led, power, frame)| (i, led, power, frame)),
+            );
+        }
+        if sent.is_empty() {
+            self.ir_sent = sent;
+            return;
+        }
+        let scene = Scene {
+            robots: &self.robot_boxes,
+            obstacles: &self.obstacle_boxes,
+            arena: [self.world.arena.width_m, self.world.arena.height_m],
+            grid: &self.grid,
+        };
+        let spec = &self.spec;
+        let light = |&(i, led, power, _): &(usize, u8, u8, IrFrame)| {
+            let &angle = spec.ir_led_angle_deg.get(usize::from(led))?;
+            let level = usize::from(power.clamp(1, 4)) - 1;
+            Some(ir::propagate(
+                &scene,
+                &Beam {
+                    robot: i,
+                    led_angle: angle.to_radians(),
+                    range: spec.ir_range_m[level],
+                    cone_half: spec.ir_cone_half_deg.to_radians(),
+                },
+            ))
+        };
+        // Each beam only reads the scene; arrivals are delivered afterwards in the order the
+        // beams were sent, so the thread count cannot change the run.
+        let arrivals: Vec<Option<ir::Arrivals>> = if sent.len() >= PARALLEL_BEAMS_FROM {
+            sent.par_iter().map(light).collect()
+        } else {
+            sent.iter().map(light).collect()
+        };
+        for (&(i, _, _, frame), arrived) in sent.iter().zip(arrivals) {
+            let Some(arrived) = arrived else { continue };
+            for (j, side) in arrived.robots {
+                self.robots[j].firmware.on_ir_frame(now, side, frame);
+            }
+            if let Some(side) = arrived.reflection {
+                self.robots[i].firmware.on_ir_frame(now, side, frame);
             }
         }
-        for (j, side, frame) in deliveries {
-            self.robots[j].firmware.on_ir_frame(now, side, frame);
-        }
+        self.ir_sent = sent;
     }
 }
 

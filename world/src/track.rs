@@ -209,7 +209,7 @@ pub enum TrackError {
 }
 
 /// Exact shape of an edge, cached at construction.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 enum Shape {
     Line {
         start: Point2<f64>,
@@ -456,6 +456,17 @@ struct GridIndex {
     /// Cell `i` lists `items[starts[i]..starts[i + 1]]`.
     starts: Vec<u32>,
     items: Vec<u32>,
+    /// The tape of each of `items`, side by side in cell order: a floor query reads one short
+    /// run of memory instead of edges scattered over the whole track.
+    tapes: Vec<CellTape>,
+}
+
+/// What a floor query needs of one edge listed in a cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct CellTape {
+    shape: Shape,
+    half_width_m: f64,
+    surface: Surface,
 }
 
 impl GridIndex {
@@ -519,18 +530,31 @@ impl GridIndex {
         for i in 0..cols * rows {
             starts[i + 1] += starts[i];
         }
+        let items: Vec<u32> = pairs.into_iter().map(|(_, e)| e).collect();
+        let tapes = items
+            .iter()
+            .map(|&ei| {
+                let e = &edges[ei as usize];
+                CellTape {
+                    shape: e.shape,
+                    half_width_m: e.width_m / 2.0,
+                    surface: e.surface(),
+                }
+            })
+            .collect();
         GridIndex {
             origin: lo,
             cell,
             cols,
             rows,
             starts,
-            items: pairs.into_iter().map(|(_, e)| e).collect(),
+            items,
+            tapes,
         }
     }
 
-    /// Edges listed by the cell holding `p`, or `None` off the grid.
-    fn cell_items(&self, p: Point2<f64>) -> Option<&[u32]> {
+    /// Tapes listed by the cell holding `p`, or `None` off the grid.
+    fn cell_tapes(&self, p: Point2<f64>) -> Option<&[CellTape]> {
         let fx = (p.x - self.origin.x) / self.cell;
         let fy = (p.y - self.origin.y) / self.cell;
         // Written so NaN also lands here: it fails every comparison.
@@ -539,7 +563,7 @@ impl GridIndex {
         }
         let i = fy as usize * self.cols + fx as usize;
         let (a, b) = (*self.starts.get(i)?, *self.starts.get(i + 1)?);
-        self.items.get(a as usize..b as usize)
+        self.tapes.get(a as usize..b as usize)
     }
 }
 
@@ -714,22 +738,19 @@ impl Track {
     /// [`floor_at`](Self::floor_at) together with the work it did, for checking the index.
     pub fn floor_at_counted(&self, p: Point2<f64>) -> (Surface, QueryCost) {
         let mut cost = QueryCost::default();
-        let Some(items) = self.index.cell_items(p) else {
+        let Some(tapes) = self.index.cell_tapes(p) else {
             return (Surface::WHITE, cost);
         };
         cost.cells_visited = 1;
         let mut best = Surface::WHITE;
-        for &ei in items {
-            let Some(e) = self.edges.get(ei as usize) else {
-                continue;
-            };
-            let tape = e.surface();
+        for t in tapes {
+            let tape = t.surface;
             // Only a darker tape can change the answer, so skip the geometry otherwise.
             if tape.ir_reflectance >= best.ir_reflectance {
                 continue;
             }
             cost.edges_tested += 1;
-            if e.shape.covers(p, e.width_m / 2.0) {
+            if t.shape.covers(p, t.half_width_m) {
                 best = tape;
                 if best == Surface::BLACK {
                     break;
