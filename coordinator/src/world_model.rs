@@ -811,8 +811,19 @@ impl WorldModel {
     /// Every robot, in id order.
     pub fn views(&self) -> Vec<RobotView> {
         let mut v: Vec<RobotView> = self.robots.iter().map(|e| e.value().clone()).collect();
-        v.sort_by_key(|r| r.id);
-        v
+        // A sort moves whole views, hundreds of bytes each, about log2(n) times over: with 1,000
+        // robots that was a tenth of a run. Sorting the ids and moving each view once is linear
+        // in bytes.
+        let mut order: Vec<(u16, u32)> = v
+            .iter()
+            .enumerate()
+            .map(|(i, r)| (r.id, i as u32))
+            .collect();
+        order.sort_unstable();
+        order
+            .iter()
+            .map(|&(_, i)| std::mem::take(&mut v[i as usize]))
+            .collect()
     }
 
     /// Every robot's localisation record so far, in id order (time lost counts an episode still
