@@ -103,6 +103,21 @@ impl SimBoard {
         self.fresh = (false, false);
     }
 
+    /// Puts the line sensor's centre at `sensor` with its heading's (sin, cos); the floor is
+    /// looked at again only if that moved it, so a robot standing still reads the same spots
+    /// without the lookups.
+    pub fn place_floor_sensor(&mut self, sensor: [f64; 2], sin_cos: (f64, f64)) {
+        match &mut self.floor {
+            Some(f) if f.sensor == sensor && f.sin_cos == sin_cos => {}
+            Some(f) => {
+                f.sensor = sensor;
+                f.sin_cos = sin_cos;
+                self.fresh = (false, false);
+            }
+            None => self.fresh = (false, false),
+        }
+    }
+
     fn look_at_floor(&mut self) {
         if self.fresh.0 {
             return;

@@ -260,12 +260,10 @@ impl SimRobot {
             .min(1.0);
         let [(p0, (s0, c0)), (p1, (s1, c1))] = self.sensor_path;
         let lerp = |a: f64, b: f64| a + (b - a) * f;
+        let sensor = [lerp(p0[0], p1[0]), lerp(p0[1], p1[1])];
+        let sin_cos = (lerp(s0, s1), lerp(c0, c1));
         let board = self.firmware.board_mut();
-        if let Some(view) = &mut board.floor {
-            view.sensor = [lerp(p0[0], p1[0]), lerp(p0[1], p1[1])];
-            view.sin_cos = (lerp(s0, s1), lerp(c0, c1));
-            board.moved();
-        }
+        board.place_floor_sensor(sensor, sin_cos);
     }
 
     /// Battery terminal voltage, volts.
@@ -957,11 +955,7 @@ impl Simulation {
             ];
             r.sensor_path = [r.sensor_path[1], (sensor, (s, c))];
             let board = r.firmware.board_mut();
-            if let Some(f) = &mut board.floor {
-                f.sensor = sensor;
-                f.sin_cos = (s, c);
-            }
-            board.moved();
+            board.place_floor_sensor(sensor, (s, c));
             let to_mg = |a: f64| (a / GRAVITY * 1000.0).clamp(-32000.0, 32000.0) as i16;
             board.accel = [
                 to_mg(acc.x * c + acc.y * s),
