@@ -1466,25 +1466,32 @@ mod tests {
         assert!(moves_for(&out, 2) > 0, "{out:?}");
     }
 
-    #[test]
-    fn a_lifelong_plan_keeps_a_drive_and_lets_no_robot_into_the_node_it_left_before_it_arrives() {
+    /// Two robots on `junction`, running: robot 1 stands on A, robot 2 left F for C and is at
+    /// action `index` of the old plan. Returns the behaviour and the nodes A, F and C.
+    fn one_standing_one_driving_f_to_c(index: usize) -> (TrafficControl, u32, u32, u32) {
         let mut t = junction(&[1, 2]);
         let (a, f, c) = (node(&t, "A"), node(&t, "F"), node(&t, "C"));
         let (edge, forward) = t.edge_between(f, c).unwrap();
         t.phase = Phase::Running;
-        // Robot 1 stands on A with F as its goal; robot 2 drives F -> C, its goal.
         t.bots[0].node = a;
-        t.bots[0].goal = f;
         t.bots[1].node = f;
-        t.bots[1].goal = c;
         t.bots[1].driving = Some(EdgeDrive {
-            index: Some(7),
+            index: Some(index),
             edge,
             forward,
             to: c,
             last: false,
             back: false,
         });
+        (t, a, f, c)
+    }
+
+    #[test]
+    fn a_lifelong_plan_keeps_a_drive_and_lets_no_robot_into_the_node_it_left_before_it_arrives() {
+        let (mut t, a, f, c) = one_standing_one_driving_f_to_c(7);
+        // Robot 1 has F as its goal; robot 2 drives to C, its goal.
+        t.bots[0].goal = f;
+        t.bots[1].goal = c;
         assert!(t.replan_lifelong().unwrap());
         assert_eq!(t.bots[1].driving.unwrap().index, Some(0));
         let adg = t.adg.as_mut().unwrap();
@@ -1500,24 +1507,11 @@ mod tests {
 
     #[test]
     fn a_robot_sent_on_from_its_goal_gets_a_new_task_at_the_next_lifelong_plan() {
-        let mut t = junction(&[1, 2]);
-        let (a, f, c) = (node(&t, "A"), node(&t, "F"), node(&t, "C"));
-        let (edge, forward) = t.edge_between(f, c).unwrap();
-        t.phase = Phase::Running;
-        t.bots[0].node = a;
+        let (mut t, _, f, c) = one_standing_one_driving_f_to_c(2);
         t.bots[0].goal = u32::MAX;
         // Robot 2 reached F, its goal, and the old plan sent it on towards C.
-        t.bots[1].node = f;
         t.bots[1].goal = f;
         t.bots[1].reached = true;
-        t.bots[1].driving = Some(EdgeDrive {
-            index: Some(2),
-            edge,
-            forward,
-            to: c,
-            last: false,
-            back: false,
-        });
         assert!(t.replan_lifelong().unwrap());
         // A new task from C, where it is committed to: not counted again on reaching F.
         assert!(!t.bots[1].reached);

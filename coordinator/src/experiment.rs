@@ -287,6 +287,17 @@ pub fn load_world(name: &str) -> Result<World> {
         };
         return presets::grid_exact(cols, rows, robots).map_err(|e| anyhow!("world {name:?}: {e}"));
     }
+    if let Some(robots) = name.strip_prefix("serpentine:") {
+        // `serpentine:ROBOTS`, one generated loop for line following at scale.
+        return match robots.parse::<usize>() {
+            Ok(n) if (1..=usize::from(u16::MAX)).contains(&n) => Ok(presets::serpentine(n)),
+            _ => bail!(
+                "world {name:?}: expected serpentine:ROBOTS with 1 to {} robots, e.g. \
+                 serpentine:500",
+                u16::MAX
+            ),
+        };
+    }
     if name.ends_with(".toml") || std::path::Path::new(name).exists() {
         return file::load(name).map_err(|e| anyhow!("{e}"));
     }

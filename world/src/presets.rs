@@ -164,6 +164,99 @@ pub fn grid(cols: usize, rows: usize, robots: usize) -> World {
     }
 }
 
+/// Distance between neighbouring lanes of a [`serpentine`], in metres: its U-turns have half
+/// this radius, as gentle as the `oval`'s bends.
+pub const SERPENTINE_LANE_M: f64 = 0.6;
+
+/// Tape per robot on a [`serpentine`], in metres: room to follow at cruising speed.
+pub const SERPENTINE_PER_ROBOT_M: f64 = 0.25;
+
+/// A single closed loop of tape for `robots` line followers (ids 1, 2, …): an even number of
+/// straight lanes [`SERPENTINE_LANE_M`] apart, joined by U-turns at alternate ends, and a return
+/// lane beside them, about square and with at least [`SERPENTINE_PER_ROBOT_M`] of tape per robot.
+/// The robots stand on the lanes, evenly spread, heading along the loop. `robots` is clamped to
+/// 1..=65,535.
+pub fn serpentine(robots: usize) -> World {
+    let robots = robots.clamp(1, usize::from(u16::MAX));
+    let count = robots;
+    let lane_gap = SERPENTINE_LANE_M;
+    let turn = lane_gap * 2.0;
+    let tape = robots as f64 * SERPENTINE_PER_ROBOT_M;
+    // About square: lanes × gap ≈ lane length, and lanes × length ≈ the tape needed.
+    // Six lanes at least leave the return lane room for its two quarter turns.
+    let mut lanes = ((tape / lane_gap).sqrt().ceil() as usize).max(6);
+    lanes += lanes % 2;
+    let length = (tape / lanes as f64).max(1.0);
+    let margin = 0.3;
+    let x0 = margin + turn;
+    let x1 = x0 + length;
+    let y = |k: usize| margin + lane_gap / 2.0 + lane_gap * k as f64;
+    let top = y(lanes - 1);
+    let mut nodes = Vec::new();
+    let mut edges = Vec::new();
+    for k in 0..lanes {
+        nodes.push(Node::new(format!("w{k}"), x0, y(k)));
+        nodes.push(Node::new(format!("e{k}"), x1, y(k)));
+        // Even lanes run east, odd lanes west; each U-turn turns towards the next lane up.
+        let (from, to) = if k % 2 == 0 { ("w", "e") } else { ("e", "w") };
+        edges.push(EdgeSpec::straight(format!("{from}{k}"), format!("{to}{k}")));
+        if k + 1 < lanes {
+            let sweep = if k % 2 == 0 { 180.0 } else { -180.0 };
+            edges.push(EdgeSpec::arc(
+                format!("{to}{k}"),
+                format!("{to}{}", k + 1),
+                sweep,
+            ));
+        }
+    }
+    // The last lane ends west, heading west: turn left twice around the U-turns' outside and
+    // come back down to the first lane's start.
+    nodes.push(Node::new("rt", x0 - turn, top - turn));
+    nodes.push(Node::new("rb", x0 - turn, y(0) + turn));
+    edges.push(EdgeSpec::arc(format!("w{}", lanes - 1), "rt", 90.0));
+    edges.push(EdgeSpec::straight("rt", "rb"));
+    edges.push(EdgeSpec::arc("rb", "w0", 90.0));
+    // Every node is placed apart and each arc's chord fits its sweep, so the track cannot be
+    // refused; an empty track (never expected) is safer than a panic in a generator.
+    let track = Track::new(nodes, edges).unwrap_or_default();
+
+    let per_lane = robots.div_ceil(lanes);
+    let robots = (0..robots)
+        .filter_map(|i| {
+            let (k, slot) = (i / per_lane, i % per_lane);
+            let along = length * (slot as f64 + 0.5) / per_lane as f64;
+            let (x, heading) = if k % 2 == 0 {
+                (x0 + along, 0.0)
+            } else {
+                (x1 - along, std::f64::consts::PI)
+            };
+            Some(RobotStart {
+                id: u16::try_from(i + 1).ok()?,
+                position: Point2::new(x, y(k)),
+                heading_rad: heading,
+            })
+        })
+        .collect();
+    World {
+        name: "serpentine".to_owned(),
+        description: format!(
+            "One closed loop of {lanes} lanes {length:.2} m long, {lane_gap} m apart, for line \
+             following at scale."
+        ),
+        origin: format!("serpentine({count})"),
+        arena: Arena {
+            width_m: x1 + turn / 2.0 + margin,
+            height_m: top + lane_gap / 2.0 + margin,
+        },
+        track,
+        obstacles: Vec::new(),
+        robots,
+        link: RadioModel::default(),
+        light: Light::default(),
+        seed: Some(1),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use std::collections::HashSet;
@@ -231,6 +324,33 @@ mod tests {
         }
         assert!(preset("nope").is_none());
         assert_eq!(preset_names().len(), PRESETS.len());
+    }
+
+    #[test]
+    fn a_serpentine_is_one_closed_loop_with_room_for_its_robots() {
+        for n in [1, 10, 500, 1000] {
+            let w = serpentine(n);
+            assert_eq!(w.robots.len(), n);
+            let g = TrackGraph::new(&w.track);
+            assert!(g.graph.node_count() > 0, "{n}: the track was refused");
+            assert!(
+                g.graph.node_weights().all(|n| n.kind == NodeKind::Waypoint),
+                "{n}: not a single loop"
+            );
+            let length: f64 = (0..w.track.edges().len())
+                .map(|e| w.track.edge_length(e))
+                .sum();
+            assert!(
+                length >= n as f64 * SERPENTINE_PER_ROBOT_M,
+                "{n} robots on {length} m"
+            );
+            assert_robots_on_tape(&w, false);
+            // Neighbours on a lane stand a body length and a stopping gap apart at least.
+            for (a, b) in w.robots.iter().zip(w.robots.iter().skip(1)) {
+                let d = (a.position - b.position).norm();
+                assert!(d > 0.15, "robots {} and {} are {d} m apart", a.id, b.id);
+            }
+        }
     }
 
     #[test]

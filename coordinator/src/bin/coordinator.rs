@@ -41,8 +41,8 @@ struct Args {
     /// first.
     #[arg(long = "zenoh-config", value_name = "FILE")]
     zenoh_config: Option<PathBuf>,
-    /// A world preset, a world file, or a generated lattice `grid:COLSxROWS:ROBOTS` (default: the
-    /// behaviour's own).
+    /// A world preset, a world file, a generated lattice `grid:COLSxROWS:ROBOTS`, or a generated
+    /// loop `serpentine:ROBOTS` (default: the behaviour's own).
     #[arg(long)]
     world: Option<String>,
     /// Where the robots are.
