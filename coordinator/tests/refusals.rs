@@ -113,6 +113,8 @@ fn worlds_without_room_for_the_robots_are_refused() {
         &out,
         &["grid:2x2:50", "50 robots do not fit on a 2x2 lattice"],
     );
+    let out = coordinator(&["--behaviour", "line_follow", "--world", "serpentine:0"]);
+    assert_refused(&out, &["serpentine:0", "expected serpentine:ROBOTS"]);
     let out = coordinator(&["--behaviour", "square_walk", "--robots", "5"]);
     assert_refused(&out, &["--robots 5", "room for 1 to 4 robots"]);
     let empty = scratch("empty.toml");
@@ -124,6 +126,14 @@ fn worlds_without_room_for_the_robots_are_refused() {
     let path = empty.to_str().expect("utf-8 path");
     let out = coordinator(&["--behaviour", "square_walk", "--world", path]);
     assert_refused(&out, &["places no robots"]);
+}
+
+#[test]
+fn a_physics_rate_the_clock_cannot_divide_is_refused() {
+    for rate in ["300", "2000", "fast"] {
+        let out = coordinator(&["--behaviour", "square_walk", "--physics-hz", rate]);
+        assert_refused(&out, &["--physics-hz", rate, "1000, 500, 250, 200"]);
+    }
 }
 
 #[test]

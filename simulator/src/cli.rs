@@ -129,6 +129,18 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_physics_rate_is_a_whole_number_of_clock_steps() {
+        assert_eq!(parse_physics_hz("1000"), Ok(1));
+        assert_eq!(parse_physics_hz(" 500"), Ok(2));
+        assert_eq!(parse_physics_hz("250"), Ok(4));
+        assert_eq!(parse_physics_hz("200"), Ok(5));
+        for bad in ["300", "100", "0", "-200", "2e2", "fast"] {
+            let e = parse_physics_hz(bad).expect_err(bad);
+            assert!(e.contains("1000, 500, 250, 200"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
     fn accepts_finite_positive_bounded_seconds() {
         assert_eq!(parse_seconds("60"), Ok(60.0));
         assert_eq!(parse_seconds("0.25"), Ok(0.25));
