@@ -108,8 +108,10 @@ pub struct Encounter {
 pub struct WorldSnapshot {
     /// Time since the experiment started.
     pub time: Duration,
-    /// Every robot, in id order.
-    pub robots: Vec<RobotView>,
+    /// Every robot, in id order. Views are shared with the world model and between snapshots:
+    /// taking a snapshot copies a pointer per robot, and only a robot whose state changed since
+    /// is copied again.
+    pub robots: Vec<Arc<RobotView>>,
     /// Encounters since the previous snapshot.
     pub encounters: Vec<Encounter>,
     /// Arena size, metres.
@@ -126,7 +128,7 @@ impl RobotView {
 impl WorldSnapshot {
     /// The robot with `id`.
     pub fn robot(&self, id: u16) -> Option<&RobotView> {
-        self.robots.iter().find(|r| r.id == id)
+        self.robots.iter().find(|r| r.id == id).map(|r| &**r)
     }
 }
 

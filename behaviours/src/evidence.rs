@@ -225,7 +225,7 @@ mod tests {
     fn snap(robots: Vec<RobotView>) -> WorldSnapshot {
         WorldSnapshot {
             time: Duration::ZERO,
-            robots,
+            robots: robots.into_iter().map(std::sync::Arc::new).collect(),
             encounters: Vec::new(),
             arena: (1.0, 1.0),
         }

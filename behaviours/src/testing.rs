@@ -22,6 +22,7 @@
 //! assert!(h.team().idle(2));
 //! ```
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use protocol::packets::MoveOutcome;
@@ -61,13 +62,13 @@ impl WorldBuilder {
             theta: heading_deg.to_radians(),
         };
         self.snapshot.robots.retain(|r| r.id != id);
-        self.snapshot.robots.push(RobotView {
+        self.snapshot.robots.push(Arc::new(RobotView {
             id,
             connected: true,
             pose,
             odometry: pose,
             ..Default::default()
-        });
+        }));
         self.snapshot.robots.sort_by_key(|r| r.id);
         self
     }
@@ -101,7 +102,7 @@ impl WorldBuilder {
     /// Any other change to robot `id`'s view.
     pub fn with(mut self, id: u16, change: impl FnOnce(&mut RobotView)) -> Self {
         if let Some(r) = self.snapshot.robots.iter_mut().find(|r| r.id == id) {
-            change(r);
+            change(Arc::make_mut(r));
         }
         self
     }

@@ -807,7 +807,7 @@ impl ModelSampler {
 /// no pose of its own for it.
 async fn sample_model_errors(
     h: runtime::SimHandle,
-    views: Arc<dashmap::DashMap<u16, behaviours::RobotView>>,
+    views: Arc<dashmap::DashMap<u16, Arc<behaviours::RobotView>>>,
     mut stop: oneshot::Receiver<()>,
 ) -> ModelErrors {
     let mut errors = ModelErrors::default();

@@ -300,15 +300,17 @@ mod tests {
             time: Default::default(),
             robots: robots
                 .iter()
-                .map(|&(id, x, y, theta)| RobotView {
-                    id,
-                    connected: true,
-                    pose: Pose { x, y, theta },
-                    odometry: Default::default(),
-                    state: Default::default(),
-                    pending_moves: 0,
-                    on_track: None,
-                    ..Default::default()
+                .map(|&(id, x, y, theta)| {
+                    std::sync::Arc::new(RobotView {
+                        id,
+                        connected: true,
+                        pose: Pose { x, y, theta },
+                        odometry: Default::default(),
+                        state: Default::default(),
+                        pending_moves: 0,
+                        on_track: None,
+                        ..Default::default()
+                    })
                 })
                 .collect(),
             encounters: Vec::new(),

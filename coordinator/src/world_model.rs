@@ -270,7 +270,9 @@ fn junction_zones(track: &Track) -> Vec<(Point2<f64>, f64)> {
 /// The shared world model.
 #[derive(Clone)]
 pub struct WorldModel {
-    robots: Arc<DashMap<u16, RobotView>>,
+    /// Each view behind its own `Arc`, so a snapshot shares the views instead of copying them;
+    /// an update copies a view only while a snapshot still holds it (`Arc::make_mut`).
+    robots: Arc<DashMap<u16, Arc<RobotView>>>,
     estimates: Arc<DashMap<u16, Estimate>>,
     track: Arc<Track>,
     /// Nodes where three or more tapes meet, and how far around each the tapes are too close
@@ -296,7 +298,7 @@ impl WorldModel {
     }
 
     /// The map itself, for readers on other threads.
-    pub fn robots(&self) -> Arc<DashMap<u16, RobotView>> {
+    pub fn robots(&self) -> Arc<DashMap<u16, Arc<RobotView>>> {
         Arc::clone(&self.robots)
     }
 
@@ -304,7 +306,7 @@ impl WorldModel {
     pub fn add(&self, id: u16) {
         self.robots.insert(
             id,
-            RobotView {
+            Arc::new(RobotView {
                 id,
                 connected: false,
                 pose: Default::default(),
@@ -313,7 +315,7 @@ impl WorldModel {
                 pending_moves: 0,
                 on_track: None,
                 ..Default::default()
-            },
+            }),
         );
     }
 
@@ -503,7 +505,8 @@ impl WorldModel {
         } else {
             None
         };
-        if let Some(mut view) = self.robots.get_mut(&u.robot_id) {
+        if let Some(mut entry) = self.robots.get_mut(&u.robot_id) {
+            let view = Arc::make_mut(&mut entry);
             view.connected = true;
             view.pose = pose;
             view.odometry = u.pose;
@@ -804,26 +807,25 @@ impl WorldModel {
     /// Marks a robot's link as down.
     pub fn lost(&self, id: u16) {
         if let Some(mut v) = self.robots.get_mut(&id) {
-            v.connected = false;
+            Arc::make_mut(&mut v).connected = false;
         }
     }
 
     /// Every robot, in id order.
     pub fn views(&self) -> Vec<RobotView> {
-        let mut v: Vec<RobotView> = self.robots.iter().map(|e| e.value().clone()).collect();
-        // A sort moves whole views, hundreds of bytes each, about log2(n) times over: with 1,000
-        // robots that was a tenth of a run. Sorting the ids and moving each view once is linear
-        // in bytes.
-        let mut order: Vec<(u16, u32)> = v
+        self.shared_views().iter().map(|v| (**v).clone()).collect()
+    }
+
+    /// Every robot, in id order, sharing the model's views: a pointer per robot, not a copy.
+    pub fn shared_views(&self) -> Vec<Arc<RobotView>> {
+        let mut v: Vec<(u16, Arc<RobotView>)> = self
+            .robots
             .iter()
-            .enumerate()
-            .map(|(i, r)| (r.id, i as u32))
+            .map(|e| (*e.key(), Arc::clone(e.value())))
             .collect();
-        order.sort_unstable();
-        order
-            .iter()
-            .map(|&(_, i)| std::mem::take(&mut v[i as usize]))
-            .collect()
+        // Sorted by the map's keys: reading each view's id would visit every view's memory.
+        v.sort_unstable_by_key(|&(id, _)| id);
+        v.into_iter().map(|(_, view)| view).collect()
     }
 
     /// Every robot's localisation record so far, in id order (time lost counts an episode still
