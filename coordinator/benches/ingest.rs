@@ -23,51 +23,14 @@ use std::time::{Duration, Instant};
 
 use actix::prelude::*;
 use coordinator::world_model::WorldModel;
-use futures::future::BoxFuture;
-use futures::FutureExt;
 use protocol::RobotState;
-use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
+use robot_actor::link::scripted::{Feed, Scripted};
+use robot_actor::link::LinkEvent;
 use robot_actor::{RobotConfig, Shards, StateBatch};
 use tokio::sync::mpsc;
 
 /// The offered load: 10,000 links at 50 Hz.
 const OFFERED_PER_S: f64 = 500_000.0;
-
-/// Every link's packet queue, by robot id, as the robots connect.
-type Feed = Arc<Mutex<Vec<(u16, mpsc::UnboundedSender<LinkEvent>)>>>;
-
-/// A robot that says hello and then sends whatever the bench pushes into its queue.
-struct Synthetic {
-    id: u16,
-    feed: Feed,
-}
-
-impl Connector for Synthetic {
-    fn peer(&self) -> String {
-        format!("synthetic://{}", self.id)
-    }
-    fn connect(&self) -> BoxFuture<'static, Result<Link, LinkError>> {
-        let (tx, mut from_host) = mpsc::channel::<Vec<u8>>(1024);
-        let (events, rx) = mpsc::unbounded_channel();
-        let mut settings = protocol::Settings::default();
-        settings.identity.robot_id = self.id;
-        let hello = protocol::packets::Hello::new(&settings, [0, 1, 0]);
-        let (buf, n) = protocol::frame::encode_to_array(&hello);
-        let _ = events.send(LinkEvent::Packet(buf[..n].to_vec()));
-        self.feed.lock().unwrap().push((self.id, events));
-        // Host packets (pings, settings reads) are drained and ignored.
-        tokio::spawn(async move { while from_host.recv().await.is_some() {} });
-        async move {
-            Ok(Link {
-                peer: "synthetic".into(),
-                tx,
-                rx,
-                counters: Arc::new(LinkCounters::default()),
-            })
-        }
-        .boxed()
-    }
-}
 
 /// What the world-model side has taken so far.
 #[derive(Default)]
@@ -222,7 +185,7 @@ async fn measure(links: usize, wall: Duration) -> Row {
     let mut robots = Vec::new();
     for id in 1..=links as u16 {
         let robot = shards.start(
-            Arc::new(Synthetic {
+            Arc::new(Scripted {
                 id,
                 feed: Arc::clone(&feed),
             }),

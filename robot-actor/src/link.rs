@@ -14,6 +14,7 @@ use tokio::sync::mpsc;
 
 #[cfg(feature = "bluetooth")]
 pub mod bluetooth;
+pub mod scripted;
 pub mod seqpacket;
 #[cfg(feature = "sim")]
 pub mod sim;

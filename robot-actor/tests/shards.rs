@@ -5,49 +5,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use actix::prelude::*;
-use futures::future::BoxFuture;
-use futures::FutureExt;
 use protocol::packets;
 use protocol::RobotState;
-use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
+use robot_actor::link::scripted::{Feed, Scripted};
+use robot_actor::link::LinkEvent;
 use robot_actor::{RobotConfig, RobotEvent, RobotEventKind, Shards, StateBatch};
 use tokio::sync::mpsc;
-
-/// Every link's packet queue, by robot id, as the robots connect.
-type Feed = Arc<Mutex<Vec<(u16, mpsc::UnboundedSender<LinkEvent>)>>>;
-
-/// A robot that says hello, then sends whatever the test pushes into its queue.
-struct Scripted {
-    id: u16,
-    feed: Feed,
-}
-
-impl Connector for Scripted {
-    fn peer(&self) -> String {
-        format!("scripted://{}", self.id)
-    }
-    fn connect(&self) -> BoxFuture<'static, Result<Link, LinkError>> {
-        let (tx, mut from_host) = mpsc::channel::<Vec<u8>>(1024);
-        let (events, rx) = mpsc::unbounded_channel();
-        let mut settings = protocol::Settings::default();
-        settings.identity.robot_id = self.id;
-        let _ = events.send(LinkEvent::Packet(frame(&packets::Hello::new(
-            &settings,
-            [0, 1, 0],
-        ))));
-        self.feed.lock().unwrap().push((self.id, events));
-        tokio::spawn(async move { while from_host.recv().await.is_some() {} });
-        async move {
-            Ok(Link {
-                peer: "scripted".into(),
-                tx,
-                rx,
-                counters: Arc::new(LinkCounters::default()),
-            })
-        }
-        .boxed()
-    }
-}
 
 fn frame<P: protocol::Packet>(p: &P) -> Vec<u8> {
     let (buf, n) = protocol::frame::encode_to_array(p);
