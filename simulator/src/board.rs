@@ -98,24 +98,18 @@ impl SimBoard {
         }
     }
 
-    /// The robot moved: the floor under its sensors must be looked at again.
-    pub fn moved(&mut self) {
-        self.fresh = (false, false);
-    }
-
     /// Puts the line sensor's centre at `sensor` with its heading's (sin, cos); the floor is
     /// looked at again only if that moved it, so a robot standing still reads the same spots
     /// without the lookups.
     pub fn place_floor_sensor(&mut self, sensor: [f64; 2], sin_cos: (f64, f64)) {
-        match &mut self.floor {
-            Some(f) if f.sensor == sensor && f.sin_cos == sin_cos => {}
-            Some(f) => {
-                f.sensor = sensor;
-                f.sin_cos = sin_cos;
-                self.fresh = (false, false);
+        if let Some(f) = &mut self.floor {
+            if f.sensor == sensor && f.sin_cos == sin_cos {
+                return;
             }
-            None => self.fresh = (false, false),
+            f.sensor = sensor;
+            f.sin_cos = sin_cos;
         }
+        self.fresh = (false, false);
     }
 
     fn look_at_floor(&mut self) {

@@ -524,11 +524,6 @@ impl Simulation {
         std::time::Duration::from_nanos(self.dt_ns)
     }
 
-    /// The physics step's length: a whole number of clock steps.
-    pub fn physics_dt(&self) -> std::time::Duration {
-        std::time::Duration::from_nanos(self.physics_dt_ns())
-    }
-
     /// Every robot, in world-file order.
     pub fn robots(&self) -> &[SimRobot] {
         &self.robots

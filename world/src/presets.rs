@@ -144,17 +144,36 @@ pub fn grid(cols: usize, rows: usize, robots: usize) -> World {
             })
         })
         .collect();
-    World {
-        name: "grid".to_owned(),
-        description: format!(
+    generated(
+        "grid",
+        format!(
             "Warehouse lattice of {cols} x {rows} nodes {GRID_SPACING_M} m apart, \
              one robot per edge at most."
         ),
-        origin: format!("grid({cols}, {rows})"),
-        arena: Arena {
+        format!("grid({cols}, {rows})"),
+        Arena {
             width_m: 2.0 * GRID_MARGIN_M + GRID_SPACING_M * (cols - 1) as f64,
             height_m: 2.0 * GRID_MARGIN_M + GRID_SPACING_M * (rows - 1) as f64,
         },
+        track,
+        robots,
+    )
+}
+
+/// A generated world: no boxes, the default radio and light, seed 1.
+fn generated(
+    name: &str,
+    description: String,
+    origin: String,
+    arena: Arena,
+    track: Track,
+    robots: Vec<RobotStart>,
+) -> World {
+    World {
+        name: name.to_owned(),
+        description,
+        origin,
+        arena,
         track,
         obstacles: Vec::new(),
         robots,
@@ -237,24 +256,20 @@ pub fn serpentine(robots: usize) -> World {
             })
         })
         .collect();
-    World {
-        name: "serpentine".to_owned(),
-        description: format!(
+    generated(
+        "serpentine",
+        format!(
             "One closed loop of {lanes} lanes {length:.2} m long, {lane_gap} m apart, for line \
              following at scale."
         ),
-        origin: format!("serpentine({count})"),
-        arena: Arena {
+        format!("serpentine({count})"),
+        Arena {
             width_m: x1 + turn / 2.0 + margin,
             height_m: top + lane_gap / 2.0 + margin,
         },
         track,
-        obstacles: Vec::new(),
         robots,
-        link: RadioModel::default(),
-        light: Light::default(),
-        seed: Some(1),
-    }
+    )
 }
 
 #[cfg(test)]
