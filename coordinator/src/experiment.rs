@@ -750,6 +750,7 @@ fn build_report(
             wall_contacts: t.wall_contacts,
             collision_log: t.collision_log.clone(),
             model_samples: model_errors.samples,
+            physics_hz: 1000 / plan.physics_every.max(1),
         }),
         held_intents: outcome
             .held

@@ -99,6 +99,8 @@ pub struct GroundTruth {
     pub collision_log: Vec<(f64, u16, u16)>,
     /// How many times the world model was checked against the true poses.
     pub model_samples: usize,
+    /// The simulated robots' physics rate, Hz.
+    pub physics_hz: u32,
 }
 
 impl GroundTruth {
@@ -196,6 +198,7 @@ struct JsonReport<'a> {
     worst_model_error_mm: Option<f64>,
     worst_model_heading_error_deg: Option<f64>,
     model_samples: Option<usize>,
+    physics_hz: Option<u32>,
     lost_episodes: u32,
     lost_s: f64,
     worst_uncertainty_mm: f64,
@@ -327,6 +330,7 @@ impl Report {
                 .worst_model_heading_error_rad()
                 .map(f64::to_degrees),
             model_samples: self.ground_truth.as_ref().map(|g| g.model_samples),
+            physics_hz: self.ground_truth.as_ref().map(|g| g.physics_hz),
             lost_episodes: self.lost_episodes(),
             lost_s: self.lost_time().as_secs_f64(),
             worst_uncertainty_mm: self.worst_uncertainty_m() * 1e3,
@@ -402,8 +406,8 @@ impl fmt::Display for Report {
         if let Some(g) = &self.ground_truth {
             writeln!(
                 f,
-                "  ground truth: robot-robot contacts: {}; wall contacts: {}",
-                g.robot_contacts, g.wall_contacts
+                "  ground truth ({} Hz physics): robot-robot contacts: {}; wall contacts: {}",
+                g.physics_hz, g.robot_contacts, g.wall_contacts
             )?;
             for (t, a, b) in g.collision_log.iter().take(5) {
                 writeln!(f, "    at {t:.2} s: robots {a} and {b}")?;
@@ -478,6 +482,7 @@ mod tests {
                 wall_contacts: contacts.1,
                 collision_log: vec![(1.5, 1, 2); contacts.0],
                 model_samples: 100,
+                physics_hz: 1000,
             }),
             robots: Vec::new(),
             obstacles: Vec::new(),

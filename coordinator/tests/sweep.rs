@@ -335,6 +335,11 @@ fn bad_input_is_refused_with_the_reason() {
     *reversed.last_mut().unwrap() = "5..1";
     refused(&reversed, &[], &["5..1", "empty"]);
     refused(SWEEP, &["--shard", "3/2"], &["3/2", "between 1 and N"]);
+    refused(
+        SWEEP,
+        &["--physics-hz", "1000,300"],
+        &["--physics-hz \"300\"", "1000, 500, 250, 200"],
+    );
     let mut unknown: Vec<&str> = SWEEP.to_vec();
     unknown[2] = "square_dance";
     refused(
@@ -350,16 +355,27 @@ fn bad_input_is_refused_with_the_reason() {
         "square_walk",
         "--robots",
         "2",
+        "--physics-hz",
+        "500",
         "--seeds",
         "1",
     ];
     run_ok(&one, &out, &[]);
+    // The rate reaches the run: its report says what physics it ran on.
+    let result = &json_lines(&out.join("results.jsonl"))[0];
+    assert_eq!(result["physics_hz"], 500, "{result}");
+    let report = out.join("runs/robots=2,physics_hz=500,seed=1.json");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    assert_eq!(report["physics_hz"], 500);
     let other = [
         "sweep",
         "--behaviour",
         "square_walk",
         "--robots",
         "2",
+        "--physics-hz",
+        "500",
         "--seeds",
         "1..2",
     ];

@@ -55,6 +55,10 @@ pub struct SweepArgs {
     /// Numbers of simulated robots, comma-separated or repeated (default: the world's own).
     #[arg(long = "robots", value_name = "N1,N2")]
     pub robots: Vec<String>,
+    /// Physics rates of the simulated robots in Hz, comma-separated or repeated (1000, 500, 250,
+    /// 200; default: the coordinator's).
+    #[arg(long = "physics-hz", value_name = "HZ1,HZ2")]
+    pub physics_hz: Vec<String>,
     /// Each run's time limit in simulated seconds (default: the coordinator's).
     #[arg(long, value_parser = simulator::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
@@ -135,6 +139,9 @@ pub struct Definition {
     pub worlds: Vec<String>,
     /// Robot counts (empty: the world's own).
     pub robots: Vec<usize>,
+    /// Physics rates, Hz (empty: the coordinator's default). Sweeps written before it read empty.
+    #[serde(default)]
+    pub physics_hz: Vec<u32>,
     /// Behaviour parameters and their values, in the order given.
     pub params: Vec<(String, Vec<String>)>,
     /// Seeds, in the order given.
@@ -152,6 +159,8 @@ pub struct RunSpec {
     pub world: Option<String>,
     /// Robot count, when the sweep lists them.
     pub robots: Option<usize>,
+    /// Physics rate in Hz, when the sweep lists rates.
+    pub physics_hz: Option<u32>,
     /// Parameter values, in the sweep's parameter order.
     pub params: Vec<(String, String)>,
     /// Seed.
@@ -167,6 +176,9 @@ impl RunSpec {
         }
         if let Some(n) = self.robots {
             c.push(("robots".to_string(), n.to_string()));
+        }
+        if let Some(hz) = self.physics_hz {
+            c.push(("physics_hz".to_string(), hz.to_string()));
         }
         c.extend(self.params.iter().cloned());
         c
@@ -243,10 +255,19 @@ impl Definition {
                 _ => bail!("--robots {s:?}: expected a number of simulated robots (1 or more)"),
             })
             .collect::<Result<Vec<_>>>()?;
+        let physics_hz = parse_list("--physics-hz", &a.physics_hz)?
+            .iter()
+            .map(|s| {
+                simulator::cli::parse_physics_hz(s)
+                    .map(|every| 1000 / every)
+                    .map_err(|e| anyhow::anyhow!("--physics-hz {s:?}: {e}"))
+            })
+            .collect::<Result<Vec<_>>>()?;
         Ok(Self {
             behaviour,
             worlds,
             robots,
+            physics_hz,
             params,
             seeds,
             duration_s: a.duration,
@@ -265,11 +286,17 @@ impl Definition {
                 self.robots.iter().map(ToString::to_string).collect(),
             ));
         }
+        if self.physics_hz.len() > 1 {
+            s.push((
+                "physics_hz".to_string(),
+                self.physics_hz.iter().map(ToString::to_string).collect(),
+            ));
+        }
         s.extend(self.params.iter().filter(|(_, v)| v.len() > 1).cloned());
         s
     }
 
-    /// Every run, in the sweep's fixed order: worlds, robot counts, then parameters in the order
+    /// Every run, in the sweep's fixed order: worlds, robot counts, physics rates, then parameters in the order
     /// given, the seed varying fastest.
     pub fn runs(&self) -> Vec<RunSpec> {
         let worlds: Vec<Option<String>> = if self.worlds.is_empty() {
@@ -281,6 +308,11 @@ impl Definition {
             vec![None]
         } else {
             self.robots.iter().copied().map(Some).collect()
+        };
+        let rates: Vec<Option<u32>> = if self.physics_hz.is_empty() {
+            vec![None]
+        } else {
+            self.physics_hz.iter().copied().map(Some).collect()
         };
         let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
         for (k, vs) in &self.params {
@@ -298,15 +330,18 @@ impl Definition {
         let mut runs = Vec::new();
         for w in &worlds {
             for n in &robots {
-                for c in &combos {
-                    for &seed in &self.seeds {
-                        runs.push(RunSpec {
-                            index: runs.len(),
-                            world: w.clone(),
-                            robots: *n,
-                            params: c.clone(),
-                            seed,
-                        });
+                for hz in &rates {
+                    for c in &combos {
+                        for &seed in &self.seeds {
+                            runs.push(RunSpec {
+                                index: runs.len(),
+                                world: w.clone(),
+                                robots: *n,
+                                physics_hz: *hz,
+                                params: c.clone(),
+                                seed,
+                            });
+                        }
                     }
                 }
             }
@@ -363,11 +398,13 @@ pub fn parse_param_list(s: &str) -> Result<(String, Vec<String>)> {
     if k.is_empty() {
         bail!("--param {s:?}: the key is empty");
     }
-    if ["seed", "world", "robots"].contains(&k) {
-        bail!(
-            "--param {s:?}: {k} is not a behaviour parameter; use --{k}{}",
-            if k == "seed" { "s" } else { "" }
-        );
+    if ["seed", "world", "robots", "physics_hz"].contains(&k) {
+        let flag = match k {
+            "seed" => "seeds",
+            "physics_hz" => "physics-hz",
+            k => k,
+        };
+        bail!("--param {s:?}: {k} is not a behaviour parameter; use --{flag}");
     }
     let values = parse_list(&format!("--param {k}"), &[vs.to_string()])?;
     Ok((k.to_string(), values))
@@ -461,6 +498,7 @@ mod tests {
             behaviour: "line_follow".into(),
             worlds: vec!["oval".into(), "ring".into()],
             robots: vec![],
+            physics_hz: vec![],
             params: vec![("laps".into(), vec!["1".into(), "2".into()])],
             seeds: vec![3, 4, 5],
             duration_s: None,
@@ -478,5 +516,42 @@ mod tests {
             ..runs[0].clone()
         };
         assert_eq!(w.file_stem(), "world=maps_a_b.toml,laps=1,seed=3");
+    }
+
+    #[test]
+    fn physics_rates_are_a_coordinate_between_robots_and_parameters() {
+        let d = Definition {
+            behaviour: "square_walk".into(),
+            worlds: vec![],
+            robots: vec![2],
+            physics_hz: vec![1000, 500],
+            params: vec![("side".into(), vec!["0.1".into()])],
+            seeds: vec![1, 2],
+            duration_s: None,
+        };
+        let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "robots=2,physics_hz=1000,side=0.1,seed=1",
+                "robots=2,physics_hz=1000,side=0.1,seed=2",
+                "robots=2,physics_hz=500,side=0.1,seed=1",
+                "robots=2,physics_hz=500,side=0.1,seed=2",
+            ]
+        );
+        assert_eq!(
+            d.swept(),
+            [("physics_hz".to_string(), vec!["1000".into(), "500".into()])]
+        );
+        assert!(parse_param_list("physics_hz=500")
+            .unwrap_err()
+            .to_string()
+            .contains("--physics-hz"));
+        // A sweep stored before rates could be swept reads as one at the default rate.
+        let mut old = serde_json::to_value(&d).unwrap();
+        old.as_object_mut().unwrap().remove("physics_hz");
+        let old: Definition = serde_json::from_value(old).unwrap();
+        assert!(old.physics_hz.is_empty());
+        assert_eq!(old.runs().len(), 2);
     }
 }

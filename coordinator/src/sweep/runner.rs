@@ -180,6 +180,9 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
     if let Some(n) = spec.robots {
         cmd.arg("--robots").arg(n.to_string());
     }
+    if let Some(hz) = spec.physics_hz {
+        cmd.arg("--physics-hz").arg(hz.to_string());
+    }
     for (k, v) in &spec.params {
         cmd.arg("--param").arg(format!("{k}={v}"));
     }
@@ -203,6 +206,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         combination: spec.combination(),
         world: spec.world.clone(),
         robots: spec.robots,
+        physics_hz: spec.physics_hz,
         params: spec.params.iter().cloned().collect(),
         seed: spec.seed,
         outcome: Outcome::Error,

@@ -39,6 +39,9 @@ pub struct RunResult {
     pub world: Option<String>,
     /// Robot count, when swept.
     pub robots: Option<usize>,
+    /// Physics rate in Hz, when swept.
+    #[serde(default)]
+    pub physics_hz: Option<u32>,
     /// Parameter values.
     pub params: BTreeMap<String, String>,
     /// Seed.

@@ -298,6 +298,9 @@ pub fn coordinate_keys(definition: &Definition) -> Vec<String> {
     if !definition.robots.is_empty() {
         keys.push("robots".to_string());
     }
+    if !definition.physics_hz.is_empty() {
+        keys.push("physics_hz".to_string());
+    }
     keys.extend(definition.params.iter().map(|(k, _)| k.clone()));
     keys
 }
@@ -307,6 +310,7 @@ pub fn coordinate(r: &RunResult, key: &str) -> String {
     match key {
         "world" => r.world.clone().unwrap_or_default(),
         "robots" => r.robots.map(|n| n.to_string()).unwrap_or_default(),
+        "physics_hz" => r.physics_hz.map(|n| n.to_string()).unwrap_or_default(),
         k => r.params.get(k).cloned().unwrap_or_default(),
     }
 }
