@@ -572,7 +572,7 @@ mod tests {
             ("token_ring", &["reverse", "rounds", "speed"]),
             (
                 "traffic_control",
-                &["goals", "quota", "replan", "segment_m", "tasks"],
+                &["flow", "goals", "quota", "replan", "segment_m", "tasks"],
             ),
         ];
         assert_eq!(

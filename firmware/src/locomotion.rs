@@ -141,6 +141,28 @@ struct Active {
     target: (f32, f32),
     /// Fraction done, kept for the state packet.
     progress: f32,
+    /// Speed the profile starts from: the speed the previous move flowed into this one at, else
+    /// the minimum speed.
+    entry_mps: f32,
+}
+
+impl Move {
+    /// Whether `next` can follow this move without slowing to the minimum speed between them:
+    /// both drive forward (straights and arcs whose wheels both turn ahead) or both backward.
+    /// A rotation, a pivot or a change of direction still ramps down, so that single-channel
+    /// encoders never have to count a wheel through a reversal at speed.
+    fn flows_into(&self, next: &Move, gauge_m: f32) -> bool {
+        let forward = |m: &Move| {
+            let (l, r) = m.wheel_distances(gauge_m);
+            match m.kind {
+                MoveKind::Rotate { .. } => None,
+                _ if l > 0.0 && r > 0.0 => Some(true),
+                _ if l < 0.0 && r < 0.0 => Some(false),
+                _ => None,
+            }
+        };
+        matches!((forward(self), forward(next)), (Some(a), Some(b)) if a == b)
+    }
 }
 
 /// The move queue and its controllers.
@@ -154,6 +176,8 @@ pub struct Locomotion {
     last_dir: (i8, i8),
     speed_pid: Pid,
     balance_pid: Pid,
+    /// The speed the move just finished flowed into the next at, for the next's profile.
+    carried_mps: Option<f32>,
 }
 
 impl Default for Locomotion {
@@ -172,6 +196,7 @@ impl Locomotion {
             last_dir: (0, 0),
             speed_pid: Pid::new(),
             balance_pid: Pid::new(),
+            carried_mps: None,
         }
     }
 
@@ -222,6 +247,7 @@ impl Locomotion {
             events(LocomotionEvent::Finished { id: mv.id, outcome });
         }
         self.chain_origin = None;
+        self.carried_mps = None;
         self.last_dir = (0, 0);
         self.speed_pid.reset();
         self.balance_pid.reset();
@@ -255,13 +281,19 @@ impl Locomotion {
                 let origin = self
                     .chain_origin
                     .unwrap_or((wheels.left_ticks, wheels.right_ticks));
+                let carried = self.carried_mps.take();
                 self.active = Some(Active {
                     mv,
                     origin,
                     target: mv.wheel_distances(geometry.wheel_gauge_m),
                     progress: 0.0,
+                    entry_mps: carried.unwrap_or(settings.locomotion.min_speed_mps),
                 });
-                self.speed_pid.reset();
+                // A move the last one flowed into keeps the speed loop's state: resetting it at
+                // cruise speed would dip the wheels at every joint.
+                if carried.is_none() {
+                    self.speed_pid.reset();
+                }
                 self.balance_pid.reset();
             }
             let a = self.active.as_mut()?;
@@ -282,8 +314,18 @@ impl Locomotion {
             // Outer-wheel speed along the target direction.
             let v = (wheels.left_mps * tl + wheels.right_mps * tr) / t2;
             let coast = (v * settings.locomotion.coast_s).clamp(0.0, outer * 0.25);
+            let loco = &settings.locomotion;
+            let cruise = a.mv.speed_mps.min(loco.max_speed_mps);
+            // Looked at every step: a move queued while this one runs may still be flowed into.
+            let exit_mps = match self.queue.front() {
+                Some(next) if a.mv.flows_into(next, geometry.wheel_gauge_m) => {
+                    Some(cruise.min(next.speed_mps.min(loco.max_speed_mps)))
+                }
+                _ => None,
+            };
             if fraction * outer + coast >= outer || outer < tick_m * 0.5 {
                 let id = a.mv.id;
+                self.carried_mps = exit_mps;
                 let ticks = |d: f32| libm::roundf(d / tick_m) as i32;
                 self.chain_origin = Some((
                     a.origin.0.wrapping_add(ticks(dl)),
@@ -311,11 +353,11 @@ impl Locomotion {
                 }
             };
             self.last_dir = (sign(tl), sign(tr));
-            let loco = &settings.locomotion;
-            let target_v = profile(
+            let target_v = profile_between(
                 a.progress * outer,
                 outer,
-                a.mv.speed_mps.min(loco.max_speed_mps),
+                cruise,
+                (a.entry_mps, exit_mps.unwrap_or(loco.min_speed_mps)),
                 loco,
             );
             let u = loco.pwm_per_mps * target_v
@@ -349,17 +391,36 @@ pub fn profile(
     cruise: f32,
     loco: &protocol::settings::LocomotionSettings,
 ) -> f32 {
+    profile_between(
+        s,
+        total,
+        cruise,
+        (loco.min_speed_mps, loco.min_speed_mps),
+        loco,
+    )
+}
+
+/// The profile of a move entered at `ends.0` and left at `ends.1` (m/s): it ramps from the
+/// entry speed and down to the exit speed, each clamped to `[min_speed_mps, cruise]`, so a move
+/// flowing into the next keeps its speed across the joint.
+pub fn profile_between(
+    s: f32,
+    total: f32,
+    cruise: f32,
+    ends: (f32, f32),
+    loco: &protocol::settings::LocomotionSettings,
+) -> f32 {
     let v_min = loco.min_speed_mps.min(cruise).max(0.0);
-    let span = cruise - v_min;
-    let ramp = |d: f32, len: f32| {
+    let ramp = |from: f32, d: f32, len: f32| {
+        let from = from.clamp(v_min, cruise);
         if len > 0.0 {
-            v_min + span * (d / len).clamp(0.0, 1.0)
+            from + (cruise - from) * (d / len).clamp(0.0, 1.0)
         } else {
             cruise
         }
     };
-    let up = ramp(s, loco.accel_distance_m);
-    let down = ramp(total - s, loco.decel_distance_m);
+    let up = ramp(ends.0, s, loco.accel_distance_m);
+    let down = ramp(ends.1, total - s, loco.decel_distance_m);
     up.min(down).min(cruise).max(v_min)
 }
 
@@ -425,6 +486,84 @@ mod tests {
         // A move shorter than both ramps peaks below cruise (triangle profile).
         let short = profile(0.01, 0.02, 0.2, &loco);
         assert!(short < 0.2 && short > loco.min_speed_mps);
+    }
+
+    /// Drives `moves` on ideal wheels that turn at exactly the speeds the profile asks for: the
+    /// outer wheel's target speed at each step, the ids in the order the moves finished, and how
+    /// far each wheel went.
+    fn drive_ideal(moves: &[Move]) -> (Vec<f32>, Vec<u16>, (f32, f32)) {
+        let s = Settings::default();
+        let tick = tick_m(s.geometry.wheel_diameter_m, s.geometry.ticks_per_rev);
+        let mut l = Locomotion::new();
+        for m in moves {
+            l.enqueue(*m).unwrap();
+        }
+        let dt = 0.005;
+        let (mut at, mut w) = ((0.0f32, 0.0f32), WheelInputs::default());
+        let (mut speeds, mut finished) = (Vec::new(), Vec::new());
+        for _ in 0..10_000 {
+            let mut on_event = |e| {
+                if let LocomotionEvent::Finished { id, .. } = e {
+                    finished.push(id);
+                }
+            };
+            let Some(c) = l.step(w, &s, dt, &mut on_event) else {
+                break;
+            };
+            speeds.push(c.left_target_mps.abs().max(c.right_target_mps.abs()));
+            (w.left_mps, w.right_mps) = (c.left_target_mps, c.right_target_mps);
+            at.0 += w.left_mps * dt;
+            at.1 += w.right_mps * dt;
+            w.left_ticks = libm::roundf(at.0 / tick) as i32;
+            w.right_ticks = libm::roundf(at.1 / tick) as i32;
+        }
+        (speeds, finished, at)
+    }
+
+    #[test]
+    fn forward_moves_flow_into_each_other_at_speed_and_end_where_they_add_up_to() {
+        let min = Settings::default().locomotion.min_speed_mps;
+        let arc = Move {
+            id: 2,
+            kind: MoveKind::Arc {
+                radius_m: 0.3,
+                angle_rad: 0.2,
+            },
+            speed_mps: 0.2,
+        };
+        let (speeds, finished, at) = drive_ideal(&[straight(1, 0.1), arc, straight(3, 0.1)]);
+        assert_eq!(finished, [1, 2, 3]);
+        let first = speeds.iter().position(|&v| v >= 0.2).unwrap();
+        let last = speeds.iter().rposition(|&v| v >= 0.2).unwrap();
+        assert!(
+            speeds[first..=last].iter().all(|&v| v >= 0.2 - 1e-6),
+            "no slowing at the joints: {speeds:?}"
+        );
+        // The wheels went what the three moves add up to, less the last one's coast.
+        let (al, ar) = arc.wheel_distances(Settings::default().geometry.wheel_gauge_m);
+        assert!((at.0 - (0.2 + al)).abs() < 0.004, "{at:?}");
+        assert!((at.1 - (0.2 + ar)).abs() < 0.004, "{at:?}");
+        assert!(speeds.last().is_some_and(|&v| v < 2.0 * min));
+
+        // A rotation between two straights is still entered and left at the minimum speed.
+        let rotate = Move {
+            id: 2,
+            kind: MoveKind::Rotate { angle_rad: 1.0 },
+            speed_mps: 0.2,
+        };
+        let (speeds, finished, _) = drive_ideal(&[straight(1, 0.1), rotate, straight(3, 0.1)]);
+        assert_eq!(finished, [1, 2, 3]);
+        let slow = speeds.iter().filter(|&&v| v <= min + 0.005).count();
+        assert!(
+            slow >= 3,
+            "ramps down before and after the turn: {speeds:?}"
+        );
+        let back = straight(2, -0.1);
+        let g = 0.026;
+        assert!(straight(1, 0.1).flows_into(&arc, g));
+        assert!(!straight(1, 0.1).flows_into(&back, g));
+        assert!(back.flows_into(&straight(3, -0.05), g));
+        assert!(!arc.flows_into(&rotate, g));
     }
 
     #[test]
