@@ -460,7 +460,7 @@ impl TrafficControl {
                 // Two segments queued from the start, so that the first joint flows too.
                 let mut next_leg = leg;
                 let next = self.segment(end, &mut next_leg);
-                if forward_move(&next).is_some() {
+                if forward_move(&next).is_some() && self.along_tape(&next_leg, next.end) {
                     route.moves.extend(next.moves);
                     leg = next_leg;
                     self.bots[k].tail =
@@ -489,7 +489,9 @@ impl TrafficControl {
         }
         let start = view.pose.compose(to.relative_to(from));
         let route = self.segment(start, &mut leg);
-        if forward_move(&route).is_none() {
+        // A queued segment that would end across the tape (a short last one from a start a few
+        // millimetres aside bends hard) waits to be planned from rest.
+        if forward_move(&route).is_none() || !self.along_tape(&leg, route.end) {
             return Vec::new();
         }
         self.bots[k].tail =
