@@ -242,8 +242,8 @@ impl TrafficControl {
                 "segment_m={segment_m}: expected 0.02 to {MAX_SEGMENT_M} m"
             ));
         }
-        // Not the default: on `junction` it gained 2 % and one seed in two lost a robot on the
-        // loop; on `grid` it gained 24 % (docs/measurements.md, Traffic at scale).
+        // Not the default: one grid seed in ten lost robots for good and collided
+        // (docs/measurements.md, Traffic at scale).
         let flow: bool = cfg.param("flow", false)?;
         let scripted: Option<Vec<u32>> = match cfg.param_text("goals") {
             None => None,
