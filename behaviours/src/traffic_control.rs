@@ -455,16 +455,14 @@ impl TrafficControl {
         if self.flow && !leg.last && !leg.back {
             // A route that turns on the spot first ends where the turn's coast leaves it (degrees
             // off): the segment after it is planned from rest, where the tape has corrected that.
-            let first = forward_move(&route);
-            if let Some(end) = first.filter(|&end| self.along_tape(&leg, end)) {
+            if let Some(end) = self.flowing_end(&route, &leg) {
                 // Two segments queued from the start, so that the first joint flows too.
                 let mut next_leg = leg;
                 let next = self.segment(end, &mut next_leg);
-                if forward_move(&next).is_some() && self.along_tape(&next_leg, next.end) {
+                if self.flowing_end(&next, &next_leg).is_some() {
                     route.moves.extend(next.moves);
                     leg = next_leg;
-                    self.bots[k].tail =
-                        (!leg.last && self.along_tape(&leg, next.end)).then_some((end, next.end));
+                    self.bots[k].tail = (!leg.last).then_some((end, next.end));
                 }
             }
         }
@@ -484,20 +482,24 @@ impl TrafficControl {
         ) else {
             return Vec::new();
         };
-        if leg.last || leg.back || self.bots[k].lost.is_some() {
-            return Vec::new();
-        }
+        // A tail is only kept for a leg that goes on after it (`drive`, `on_held`, `lose` and
+        // `recover` clear it otherwise).
         let start = view.pose.compose(to.relative_to(from));
         let route = self.segment(start, &mut leg);
         // A queued segment that would end across the tape (a short last one from a start a few
         // millimetres aside bends hard) waits to be planned from rest.
-        if forward_move(&route).is_none() || !self.along_tape(&leg, route.end) {
+        if self.flowing_end(&route, &leg).is_none() {
             return Vec::new();
         }
-        self.bots[k].tail =
-            (!leg.last && self.along_tape(&leg, route.end)).then_some((start, route.end));
+        self.bots[k].tail = (!leg.last).then_some((start, route.end));
         self.bots[k].driving = Some(leg);
         self.send(k, route)
+    }
+
+    /// Where `route` ends, when it is one move driving forward that ends heading along the tape
+    /// of `leg`: a segment another can be queued behind, or that can itself be queued.
+    fn flowing_end(&self, route: &Manoeuvre, leg: &EdgeDrive) -> Option<Pose> {
+        forward_move(route).filter(|&end| self.along_tape(leg, end))
     }
 
     /// Whether a segment ending at `end` leaves the robot heading along the tape of `leg`
@@ -1288,19 +1290,8 @@ mod tests {
         };
         let t = TrafficControl::new(&cfg).unwrap();
         for (u, v) in [("B", "D"), ("D", "B"), ("M", "P2"), ("F", "P1")] {
-            let (u, v) = (
-                t.graph.node(u).unwrap().index() as u32,
-                t.graph.node(v).unwrap().index() as u32,
-            );
-            let (edge, forward) = t.edge_between(u, v).unwrap();
-            let mut leg = EdgeDrive {
-                index: Some(0),
-                edge,
-                forward,
-                to: v,
-                last: false,
-                back: false,
-            };
+            let mut leg = leg_between(&t, u, v);
+            let (edge, u, v) = (leg.edge, node(&t, u), leg.to);
             // A robot on u facing the wrong way: it turns, then follows the tape segment by
             // segment, each segment ending on the tape, until the last ends on v.
             let p = t.position(u);
@@ -1324,18 +1315,25 @@ mod tests {
     }
 
     use crate::testing::{world, Harness};
-    /// Robot 1 of `t` on node `u` facing along the tape to `v`, about to drive that edge.
-    fn on_edge_start(t: &mut TrafficControl, u: &str, v: &str) -> (usize, Pose) {
+    /// The plan's drive of the edge from node `u` to node `v`.
+    fn leg_between(t: &TrafficControl, u: &str, v: &str) -> EdgeDrive {
         let (u, v) = (node(t, u), node(t, v));
         let (edge, forward) = t.edge_between(u, v).unwrap();
-        t.bots[0].driving = Some(EdgeDrive {
+        EdgeDrive {
             index: Some(0),
             edge,
             forward,
             to: v,
             last: false,
             back: false,
-        });
+        }
+    }
+
+    /// Robot 1 of `t` on node `u` facing along the tape to `v`, about to drive that edge.
+    fn on_edge_start(t: &mut TrafficControl, u: &str, v: &str) -> (usize, Pose) {
+        let leg = leg_between(t, u, v);
+        let (edge, forward, u) = (leg.edge, leg.forward, node(t, u));
+        t.bots[0].driving = Some(leg);
         let len = t.track.edge_length(edge);
         let (_, tangent) = t.track.point_at(edge, if forward { 0.0 } else { len });
         let dir = if forward { tangent } else { -tangent };

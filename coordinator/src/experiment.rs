@@ -144,6 +144,11 @@ impl Plan {
     /// The default time limit, the CLI's `--duration` default.
     pub const DEFAULT_DURATION: Duration = Duration::from_secs(600);
 
+    /// The simulated robots' physics rate, Hz.
+    pub fn physics_hz(&self) -> u32 {
+        1000 / self.physics_every.max(1)
+    }
+
     /// `behaviour` on simulated robots: its own world with all its robots, seed 1, as fast as
     /// possible, [`Plan::DEFAULT_DURATION`], no parameters, faults or kicks.
     pub fn sim(behaviour: impl Into<String>) -> Plan {
@@ -526,7 +531,7 @@ async fn start_simulation(
 ) -> Result<(runtime::SimHandle, Vec<Discovered>)> {
     if plan.physics_every > 2 {
         tracing::warn!(
-            physics_hz = 1000 / plan.physics_every.max(1),
+            physics_hz = plan.physics_hz(),
             "physics below 500 Hz: line following keeps its accuracy, but moves and turns drift \
              (a 1,000-robot traffic run collided at 200 Hz where 1 kHz did not)"
         );
@@ -750,7 +755,7 @@ fn build_report(
             wall_contacts: t.wall_contacts,
             collision_log: t.collision_log.clone(),
             model_samples: model_errors.samples,
-            physics_hz: 1000 / plan.physics_every.max(1),
+            physics_hz: plan.physics_hz(),
         }),
         held_intents: outcome
             .held
