@@ -152,9 +152,16 @@ impl Observer {
             .collect();
         let encounters = std::mem::take(&mut self.encounters);
         if let Some(rec) = &self.setup.recorder {
+            // In simulation the latest ground truth goes beside the model (with its own time: it
+            // was asked for after the previous snapshot), so a recording shows where each
+            // estimate was wrong; replay compares only `robots`.
+            let truth = self.truth.as_ref().map(|tr| {
+                json!({"t": tr.now.as_secs_f64(),
+                    "robots": tr.robots.iter().map(|(id, p)| json!([id, p.x, p.y, p.theta])).collect::<Vec<_>>()})
+            });
             rec.json(
                 Topic::World,
-                &json!({"t": t, "robots": robots, "encounters": encounters}),
+                &json!({"t": t, "robots": robots, "encounters": encounters, "truth": truth}),
             );
             let ns = (t * 1e9) as u64;
             // The tape, boxes and trails change slowly or not at all: once a second is enough for

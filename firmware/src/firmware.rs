@@ -649,7 +649,12 @@ impl<B: Board> Firmware<B> {
                 }
             }
             let brakes = *d != 0.0 && (*d < 0.0) != self.speed[k].is_backwards();
-            if speed_loop && brakes && target.abs() < 2.0 * slowest_seen {
+            // A move never brakes against the counted direction: a wheel still turning the
+            // other way when the move began (the coast of a turn below what the meter resolves,
+            // a push) counts as turning its way, reads faster than its target, and braking drove
+            // it backwards ever harder while the odometry counted it forwards (seen in physics:
+            // a robot reversed 11 cm with its model driving 11 cm ahead). Friction slows it.
+            if brakes && (!speed_loop || target.abs() < 2.0 * slowest_seen) {
                 *d = 0.0;
             }
         }

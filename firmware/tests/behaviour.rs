@@ -473,3 +473,29 @@ fn a_detour_of_turns_both_ways_ends_where_its_geometry_says() {
         p.y * 1e3
     );
 }
+
+#[test]
+fn a_move_never_drives_a_wheel_backwards_against_its_counted_direction() {
+    // A wheel still turning backwards when a forward move starts (the coast of a turn the meter
+    // no longer resolves, a push) counts its pulses forwards, so it reads faster than its target.
+    // Braking it then drove both wheels backwards while the odometry counted them forwards.
+    for backwards_mps in [0.1f32, 0.3, 0.6] {
+        let mut r = robot();
+        r.fw.board_mut().wheels[1].speed_mps = -backwards_mps;
+        r.send(straight(0.08, 0.1, 1));
+        assert!(
+            run_alive(&mut r, Duration::from_millis(3000), |p| finished(p, 1)).is_some(),
+            "the move never finished ({backwards_mps} m/s backwards)"
+        );
+        r.run(Duration::from_millis(300), |_, _| {});
+        let [left, right] = r.fw.board().wheels.map(|w| w.travel_m);
+        // The right wheel's unseen backward coast is lost to a single-channel encoder; what
+        // matters is that neither wheel is then driven backwards.
+        assert!(
+            (left - 0.08).abs() < 0.002 && right > 0.0,
+            "{backwards_mps} m/s backwards: the wheels rolled {:.1} and {:.1} mm for 80 mm",
+            left * 1e3,
+            right * 1e3
+        );
+    }
+}

@@ -80,7 +80,9 @@ impl Topic {
                         "uncertainty": {"type": "object", "description": "1σ of the pose estimate", "properties": {"position_m": num, "heading_rad": num}},
                         "localisation": {"type": "string", "enum": ["tracking", "lost"]},
                         "state": {"type": "object"}}}},
-                    "encounters": {"type": "array"}}}),
+                    "encounters": {"type": "array"},
+                    "truth": {"type": ["object", "null"], "description": "simulation only: the latest ground truth, [id, x, y, theta] per robot at its own time t", "properties": {
+                        "t": num, "robots": {"type": "array", "items": {"type": "array"}}}}}}),
             ),
             Topic::Events => (
                 "pocketfleet.RobotEvent",
