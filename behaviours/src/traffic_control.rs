@@ -7,12 +7,12 @@
 //! the way. The plan is executed as an action dependency graph: a robot drives into a node only
 //! after every robot the plan put there before it has driven out, so robots that are slower or
 //! faster than the plan assumed never meet. When a robot reaches its goal it gets its next task
-//! and the team is planned again. With `replan=lifelong` that happens at the next snapshot while
-//! the team keeps moving: from each robot's committed node (the one it stands on, or the end of the
+//! and the team is planned again. With `replan=lifelong`, the default, that happens at the next
+//! snapshot while the team keeps moving: from each robot's committed node (the one it stands on, or the end of the
 //! edge it is driving, whose drive is kept as its first action, so that a robot sent into the
 //! node it left still waits for it to arrive), one plan for all robots that reached their goals
-//! since the last. With `replan=barrier`, the default, no new action starts until every robot
-//! stands on a node, then the team is planned from there.
+//! since the last. With `replan=barrier` no new action starts until every robot stands on a
+//! node, then the team is planned from there.
 //!
 //! Each edge is driven by the robot's own locomotion (a turn onto the tape's direction, then a
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
@@ -204,10 +204,10 @@ impl TrafficControl {
     /// robot), `quota` (tasks per robot after which it only keeps out of the way; default
     /// unlimited), `goals` (a comma-separated list of node ids, one per robot: each robot's
     /// single task, for scripted scenarios such as a swap through a single-lane section),
-    /// `replan` (`barrier`, the default, or `lifelong`: see [`Replan`]), `segment_m` (length of
-    /// one driven segment, default 0.08 m), `flow` (`true`: the next segment of an edge is
-    /// queued behind the running one, so that the robot does not slow down between them;
-    /// `false`, the default: each segment is sent once the last has ended).
+    /// `replan` (`lifelong`, the default, or `barrier`: see [`Replan`]), `segment_m` (length of
+    /// one driven segment, default 0.08 m), `flow` (`true`, the default: the next segment of an
+    /// edge is queued behind the running one, so that the robot does not slow down between
+    /// them; `false`: each segment is sent once the last has ended).
     ///
     /// # Errors
     /// A track without edges, unknown goal nodes, or a parameter out of range.
@@ -230,10 +230,8 @@ impl TrafficControl {
             return Err("tasks must be at least 1".into());
         }
         let replan_mode = match cfg.param_text("replan") {
-            // Lifelong plans are not the default: on `grid` with 200 tasks, seeds 6 and 8 lost a
-            // robot (a slipped turn) that the barrier's runs of the same seeds did not.
-            None | Some("barrier") => Replan::Barrier,
-            Some("lifelong") => Replan::Lifelong,
+            Some("barrier") => Replan::Barrier,
+            None | Some("lifelong") => Replan::Lifelong,
             Some(other) => return Err(format!("replan={other:?}: expected lifelong or barrier")),
         };
         let segment_m: f64 = cfg.param("segment_m", LOOKAHEAD)?;
@@ -242,9 +240,7 @@ impl TrafficControl {
                 "segment_m={segment_m}: expected 0.02 to {MAX_SEGMENT_M} m"
             ));
         }
-        // Not the default: one grid seed in ten lost robots for good and collided
-        // (docs/measurements.md, Traffic at scale).
-        let flow: bool = cfg.param("flow", false)?;
+        let flow: bool = cfg.param("flow", true)?;
         let scripted: Option<Vec<u32>> = match cfg.param_text("goals") {
             None => None,
             Some(list) => Some(
@@ -1408,15 +1404,15 @@ mod tests {
         }
         assert!(segments >= 3, "{segments} segments");
 
-        // `flow=false`, the default, sends one segment at a time.
-        for mut t in [
-            TrafficControl::new(&config("false")).unwrap(),
-            junction(&[1]),
+        // `flow=false` sends one segment at a time; the default flows.
+        for (mut t, sent) in [
+            (TrafficControl::new(&config("false")).unwrap(), 1),
+            (junction(&[1]), 2),
         ] {
             let (_, start) = on_edge_start(&mut t, "B", "D");
             let out = t.drive(0, &at(start));
-            assert_eq!(forward_moves(&out), 1, "{out:?}");
-            assert!(t.bots[0].tail.is_none());
+            assert_eq!(forward_moves(&out), sent, "{out:?}");
+            assert_eq!(t.bots[0].tail.is_some(), sent == 2);
         }
     }
 
