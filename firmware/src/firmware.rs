@@ -612,11 +612,8 @@ impl<B: Board> Firmware<B> {
         // only from standstill. Moves wait for their wheels to read zero speed before reversing
         // one, and count from there. The speed loops (line following, wheel speeds) are stricter:
         // standstill is no edge for the meter's timeout (the first edge after a pause reads as
-        // zero speed while the wheel still turns); a target the meter cannot resolve leaves the
-        // wheel resting; and a duty against the counted direction brakes only towards a target
-        // the meter resolves. Otherwise braking carries the wheel through zero unseen, its pulses
-        // count the wrong way and the loop pushes it ever faster: steering hard over a colour
-        // mark once counted a metre forwards as a metre backwards.
+        // zero speed while the wheel still turns); and a target the meter cannot resolve leaves
+        // the wheel resting. No mode brakes against the counted direction (below).
         let speed_loop = matches!(
             self.drive,
             Drive::LineFollow { .. } | Drive::WheelSpeeds { .. }
@@ -649,12 +646,14 @@ impl<B: Board> Firmware<B> {
                 }
             }
             let brakes = *d != 0.0 && (*d < 0.0) != self.speed[k].is_backwards();
-            // A move never brakes against the counted direction: a wheel still turning the
-            // other way when the move began (the coast of a turn below what the meter resolves,
-            // a push) counts as turning its way, reads faster than its target, and braking drove
-            // it backwards ever harder while the odometry counted it forwards (seen in physics:
-            // a robot reversed 11 cm with its model driving 11 cm ahead). Friction slows it.
-            if brakes && (!speed_loop || target.abs() < 2.0 * slowest_seen) {
+            // A duty against the counted direction is never applied; the shorted motor and
+            // friction slow the wheel. Braking carries a wheel through zero unseen (the meter
+            // reads the last pulse interval, and lags most near standstill); its pulses then
+            // count the wrong way, it reads faster than its target, and braking on drives it
+            // backwards ever harder. Steering hard over a colour mark once counted a metre
+            // forwards as a metre backwards; a move braking at its start reversed a robot 11 cm
+            // while its model drove 11 cm ahead.
+            if brakes {
                 *d = 0.0;
             }
         }
