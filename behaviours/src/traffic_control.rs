@@ -8,11 +8,11 @@
 //! after every robot the plan put there before it has driven out, so robots that are slower or
 //! faster than the plan assumed never meet. When a robot reaches its goal it gets its next task
 //! and the team is planned again. With `replan=lifelong`, the default, that happens at the next
-//! snapshot while the team keeps moving: from each robot's committed node (the one it stands on, or the end of the
-//! edge it is driving, whose drive is kept as its first action, so that a robot sent into the
-//! node it left still waits for it to arrive), one plan for all robots that reached their goals
-//! since the last. With `replan=barrier` no new action starts until every robot stands on a
-//! node, then the team is planned from there.
+//! snapshot while the team keeps moving: from each robot's committed node (the one it stands on,
+//! or the end of the edge it is driving, whose drive is kept as its first action, so that a robot
+//! sent into the node it left still waits for it to arrive), one plan for all robots that reached
+//! their goals since the last. With `replan=barrier` no new action starts until every robot
+//! stands on a node, then the team is planned from there.
 //!
 //! Each edge is driven by the robot's own locomotion (a turn onto the tape's direction, then a
 //! straight or an arc of the tape's radius), planned from the world model's pose, which the tape
