@@ -119,11 +119,13 @@ impl SimBoard {
         self.fresh.0 = true;
         let Some(f) = &self.floor else { return };
         let (s, c) = f.sin_cos;
-        for (k, spot) in self.spots.iter_mut().enumerate() {
+        let points: [Point2<f64>; 8] = std::array::from_fn(|k| {
             let lateral = (k as f64 - 3.5) * f.spot_pitch_m;
             // The sensor's rightward axis is (sin θ, −cos θ).
-            let p = Point2::new(f.sensor[0] + lateral * s, f.sensor[1] - lateral * c);
-            *spot = f.track.floor_at(p).ir_reflectance;
+            Point2::new(f.sensor[0] + lateral * s, f.sensor[1] - lateral * c)
+        });
+        for (spot, surface) in self.spots.iter_mut().zip(f.track.floor_at_each(&points)) {
+            *spot = surface.ir_reflectance;
         }
     }
 

@@ -139,6 +139,11 @@ impl PacketQueue {
         }
     }
 
+    /// Tag of the oldest packet.
+    pub fn first_tag(&self) -> Option<u64> {
+        self.items.front().map(|&(at, _)| at)
+    }
+
     /// Tag of the newest packet.
     pub fn last_tag(&self) -> Option<u64> {
         self.items.back().map(|&(at, _)| at)
@@ -301,6 +306,11 @@ impl SimLink {
     /// The next packet due at the host by `now_ns`.
     pub fn recv_at_host(&mut self, now_ns: u64) -> Option<Vec<u8>> {
         self.to_host.pop_due(now_ns)
+    }
+
+    /// When the oldest packet on its way to the host arrives there, if one is on its way.
+    pub fn next_at_host(&self) -> Option<u64> {
+        self.to_host.first_tag()
     }
 
     fn schedule(

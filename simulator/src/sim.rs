@@ -317,7 +317,18 @@ pub struct Simulation {
     contacts: Vec<Contact>,
     /// Beams sent this step: (robot, LED, power, frame), kept to reuse the allocation.
     ir_sent: Vec<(usize, u8, u8, IrFrame)>,
+    /// Per robot, what its last serving left to pass on: [`OUTGOING`] and [`BEAMS`] bits.
+    served: Vec<u8>,
+    /// Per robot, the earliest time a packet could be due at the host (`u64::MAX`: none queued);
+    /// never later than the truth, so the host's polls skip a robot's cold state when nothing
+    /// can be due.
+    host_due_ns: Vec<u64>,
 }
+
+/// [`Simulation::served`] bit: the firmware has packets to send.
+const OUTGOING: u8 = 1;
+/// [`Simulation::served`] bit: the firmware lit IR LEDs.
+const BEAMS: u8 = 2;
 
 impl Simulation {
     /// Builds the world and boots every robot's firmware.
@@ -464,6 +475,7 @@ impl Simulation {
             bandwidth_bps: world.link.bandwidth_kbps * 1e3,
             robots_per_piconet: per,
         };
+        let n_robots = robots.len();
         let piconets = vec![Piconet::default(); robots.len().div_ceil(per).max(1)];
         let mut params = IntegrationParameters {
             dt: config.dt.as_secs_f32() * config.physics_every.max(1) as f32,
@@ -499,6 +511,8 @@ impl Simulation {
             active_contacts: Vec::new(),
             contacts: Vec::new(),
             ir_sent: Vec::new(),
+            served: vec![0; n_robots],
+            host_due_ns: vec![u64::MAX; n_robots],
         };
         sim.read_sensors();
         sim
@@ -693,7 +707,13 @@ impl Simulation {
 
     /// The next packet from robot `i` that has arrived at the host.
     pub fn host_recv(&mut self, i: usize) -> Option<Vec<u8>> {
-        self.robots[i].link.recv_at_host(self.now_ns)
+        if *self.host_due_ns.get(i)? > self.now_ns {
+            return None;
+        }
+        let link = &mut self.robots[i].link;
+        let p = link.recv_at_host(self.now_ns);
+        self.host_due_ns[i] = link.next_at_host().unwrap_or(u64::MAX);
+        p
     }
 
     /// Runs `steps` steps.
@@ -789,7 +809,7 @@ impl Simulation {
             now
         };
         let interpolate = self.physics_every > 1;
-        let tick = |r: &mut SimRobot| {
+        let tick = |r: &mut SimRobot| -> u8 {
             let mut heard = false;
             while let Some(p) = r.link.recv_at_robot(now_ns) {
                 if p.get(1) == Some(&(protocol::PacketType::SettingsUpdate as u8)) {
@@ -815,16 +835,28 @@ impl Simulation {
                 }
                 r.firmware.tick(now);
             }
+            // Read while the robot's state is in this core's cache, so the serial passes below
+            // visit only robots with something to pass on.
+            u8::from(r.firmware.has_outgoing()) * OUTGOING
+                | u8::from(!r.firmware.board().ir_out.is_empty()) * BEAMS
         };
+        let mut served = std::mem::take(&mut self.served);
         if self.robots.len() >= PARALLEL_FROM {
-            self.robots.par_iter_mut().for_each(tick);
+            self.robots
+                .par_iter_mut()
+                .map(tick)
+                .collect_into_vec(&mut served);
         } else {
-            self.robots.iter_mut().for_each(tick);
+            served.clear();
+            served.extend(self.robots.iter_mut().map(tick));
         }
-        self.propagate_ir(now);
-        for i in 0..self.robots.len() {
-            self.flush_outgoing(i);
+        self.propagate_ir(now, &mut served);
+        for (i, &bits) in served.iter().enumerate() {
+            if bits & OUTGOING != 0 {
+                self.flush_outgoing(i);
+            }
         }
+        self.served = served;
     }
 
     fn flush_outgoing(&mut self, i: usize) {
@@ -839,6 +871,9 @@ impl Simulation {
                     &mut self.piconets[i / per],
                 );
             }
+        }
+        if let Some(at) = r.link.next_at_host() {
+            self.host_due_ns[i] = self.host_due_ns[i].min(at);
         }
     }
 
@@ -999,10 +1034,15 @@ impl Simulation {
         );
     }
 
-    fn propagate_ir(&mut self, now: Instant) {
+    /// Traces the beams of the robots `served` marks and delivers what each robot saw, marking the
+    /// receivers as having packets to send (a sighting may report at once).
+    fn propagate_ir(&mut self, now: Instant, served: &mut [u8]) {
         let mut sent = std::mem::take(&mut self.ir_sent);
         sent.clear();
         for (i, r) in self.robots.iter_mut().enumerate() {
+            if served[i] & BEAMS == 0 {
+                continue;
+            }
             sent.extend(
                 r.firmware
                     .board_mut()
@@ -1046,9 +1086,11 @@ impl Simulation {
             let Some(arrived) = arrived else { continue };
             for (j, side) in arrived.robots {
                 self.robots[j].firmware.on_ir_frame(now, side, frame);
+                served[j] |= OUTGOING;
             }
             if let Some(side) = arrived.reflection {
                 self.robots[i].firmware.on_ir_frame(now, side, frame);
+                served[i] |= OUTGOING;
             }
         }
         self.ir_sent = sent;

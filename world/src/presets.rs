@@ -501,6 +501,35 @@ mod tests {
     }
 
     #[test]
+    fn a_line_sensors_spots_read_together_see_what_each_alone_sees() {
+        // Sensors all over the junction's curves and crossings and a grid's tapes, at every
+        // heading, including spots that straddle index cells and leave the arena.
+        for w in [preset("junction").unwrap(), grid(0, 0, 10)] {
+            let mut differ = 0;
+            let mut dark = 0;
+            for i in 0..20_000u32 {
+                let x = f64::from(i % 173) / 173.0 * w.arena.width_m * 1.1 - 0.02;
+                let y = f64::from(i % 211) / 211.0 * w.arena.height_m * 1.1 - 0.02;
+                let (s, c) = (f64::from(i) * 0.37).sin_cos();
+                let spots: [Point2<f64>; 8] = std::array::from_fn(|k| {
+                    let lateral = (k as f64 - 3.5) * 0.004;
+                    Point2::new(x + lateral * s, y - lateral * c)
+                });
+                let together = w.track.floor_at_each(&spots);
+                for (p, t) in spots.iter().zip(together) {
+                    differ += usize::from(w.track.floor_at(*p) != t);
+                    dark += usize::from(t.ir_reflectance < 0.5);
+                }
+            }
+            assert_eq!(differ, 0);
+            assert!(
+                dark > 1000,
+                "the sample must cross tapes: {dark} dark spots"
+            );
+        }
+    }
+
+    #[test]
     fn grid_floor_queries_look_at_one_cell_and_few_edges() {
         let w = grid(0, 0, 1000);
         let stats = w.track.index_stats();

@@ -554,17 +554,44 @@ impl GridIndex {
     }
 
     /// Tapes listed by the cell holding `p`, or `None` off the grid.
-    fn cell_tapes(&self, p: Point2<f64>) -> Option<&[CellTape]> {
+    /// The index cell holding `p`; `None` off the grid.
+    fn cell_of(&self, p: Point2<f64>) -> Option<usize> {
         let fx = (p.x - self.origin.x) / self.cell;
         let fy = (p.y - self.origin.y) / self.cell;
         // Written so NaN also lands here: it fails every comparison.
         if !(fx >= 0.0 && fy >= 0.0 && fx < self.cols as f64 && fy < self.rows as f64) {
             return None;
         }
-        let i = fy as usize * self.cols + fx as usize;
-        let (a, b) = (*self.starts.get(i)?, *self.starts.get(i + 1)?);
-        self.tapes.get(a as usize..b as usize)
+        Some(fy as usize * self.cols + fx as usize)
     }
+
+    /// The tapes reaching into cell `i` (empty for a cell out of range).
+    fn tapes_in(&self, i: usize) -> &[CellTape] {
+        match (self.starts.get(i), self.starts.get(i + 1)) {
+            (Some(&a), Some(&b)) => self.tapes.get(a as usize..b as usize).unwrap_or(&[]),
+            _ => &[],
+        }
+    }
+}
+
+/// The darkest of `tapes` covering `p` (white if none), counting the edges whose geometry it tested.
+fn darkest_covering(tapes: &[CellTape], p: Point2<f64>, cost: &mut QueryCost) -> Surface {
+    let mut best = Surface::WHITE;
+    for t in tapes {
+        let tape = t.surface;
+        // Only a darker tape can change the answer, so skip the geometry otherwise.
+        if tape.ir_reflectance >= best.ir_reflectance {
+            continue;
+        }
+        cost.edges_tested += 1;
+        if t.shape.covers(p, t.half_width_m) {
+            best = tape;
+            if best == Surface::BLACK {
+                break;
+            }
+        }
+    }
+    best
 }
 
 /// Distance between the axis-aligned box from `min` to `max` and the segment a–b: zero if they meet,
@@ -738,26 +765,35 @@ impl Track {
     /// [`floor_at`](Self::floor_at) together with the work it did, for checking the index.
     pub fn floor_at_counted(&self, p: Point2<f64>) -> (Surface, QueryCost) {
         let mut cost = QueryCost::default();
-        let Some(tapes) = self.index.cell_tapes(p) else {
+        let Some(cell) = self.index.cell_of(p) else {
             return (Surface::WHITE, cost);
         };
         cost.cells_visited = 1;
-        let mut best = Surface::WHITE;
-        for t in tapes {
-            let tape = t.surface;
-            // Only a darker tape can change the answer, so skip the geometry otherwise.
-            if tape.ir_reflectance >= best.ir_reflectance {
-                continue;
-            }
-            cost.edges_tested += 1;
-            if t.shape.covers(p, t.half_width_m) {
-                best = tape;
-                if best == Surface::BLACK {
-                    break;
-                }
-            }
-        }
+        let best = darkest_covering(self.index.tapes_in(cell), p, &mut cost);
         (best, cost)
+    }
+
+    /// [`floor_at`](Self::floor_at) for each of `points`, with the same answers; points that share
+    /// an index cell (a line sensor's spots, a few millimetres apart) share its lookup.
+    pub fn floor_at_each<const N: usize>(&self, points: &[Point2<f64>; N]) -> [Surface; N] {
+        let mut out = [Surface::WHITE; N];
+        let mut cached: Option<(usize, &[CellTape])> = None;
+        let mut cost = QueryCost::default();
+        for (p, s) in points.iter().zip(&mut out) {
+            let Some(cell) = self.index.cell_of(*p) else {
+                continue;
+            };
+            let tapes = match cached {
+                Some((c, t)) if c == cell => t,
+                _ => {
+                    let t = self.index.tapes_in(cell);
+                    cached = Some((cell, t));
+                    t
+                }
+            };
+            *s = darkest_covering(tapes, *p, &mut cost);
+        }
+        out
     }
 
     /// Nearest point of any edge's centre line to `p`; `None` for a track without edges. Where
