@@ -101,14 +101,25 @@ struct Dropped {
 struct HostBuffer {
     inbox: Mutex<(PacketQueue, Dropped)>,
     stopped: AtomicBool,
+    /// Every robot's "something to drain" flag, in one allocation, so the stepping task finds the
+    /// few buffers to drain each step without touching every robot's lock.
+    waiting: Arc<[AtomicBool]>,
+    index: usize,
 }
 
 impl HostBuffer {
-    fn new() -> Self {
+    fn new(waiting: Arc<[AtomicBool]>, index: usize) -> Self {
         Self {
             inbox: Mutex::new((PacketQueue::new(LINK_BUFFER_BYTES), Dropped::default())),
             stopped: AtomicBool::new(false),
+            waiting,
+            index,
         }
+    }
+
+    /// Flags this buffer for the next step's drain; called after the inbox changed.
+    fn mark(&self) {
+        self.waiting[self.index].store(true, Ordering::Release);
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, (PacketQueue, Dropped)> {
@@ -128,6 +139,8 @@ impl HostBuffer {
             dropped.to_robot.0 += 1;
             dropped.to_robot.1 += packet.len() as u64;
         }
+        drop(guard);
+        self.mark();
         true
     }
 
@@ -135,6 +148,8 @@ impl HostBuffer {
         let mut guard = self.lock();
         guard.1.to_host.0 += 1;
         guard.1.to_host.1 += bytes as u64;
+        drop(guard);
+        self.mark();
     }
 }
 
@@ -391,8 +406,13 @@ pub fn spawn(
     let mut ends = Vec::new();
     let mut to_robot_rx = Vec::new();
     let mut from_robot_tx = Vec::new();
+    let waiting: Arc<[AtomicBool]> = sim
+        .robots()
+        .iter()
+        .map(|_| AtomicBool::new(false))
+        .collect();
     for (i, r) in sim.robots().iter().enumerate() {
-        let buffer = Arc::new(HostBuffer::new());
+        let buffer = Arc::new(HostBuffer::new(Arc::clone(&waiting), i));
         let (from_tx, from_rx) = mpsc::unbounded_channel();
         ends.push(LinkEnd {
             robot_id: r.id(),
@@ -404,7 +424,14 @@ pub fn spawn(
         to_robot_rx.push(buffer);
         from_robot_tx.push(from_tx);
     }
-    let task = tokio::spawn(step_loop(sim, pace, cmd_rx, to_robot_rx, from_robot_tx));
+    let task = tokio::spawn(step_loop(
+        sim,
+        pace,
+        cmd_rx,
+        to_robot_rx,
+        from_robot_tx,
+        waiting,
+    ));
     (SimHandle { commands: cmd_tx }, ends, task)
 }
 
@@ -473,6 +500,7 @@ async fn step_loop(
     mut commands: mpsc::UnboundedReceiver<Command>,
     to_robot: Vec<Arc<HostBuffer>>,
     from_robot: Vec<mpsc::UnboundedSender<Vec<u8>>>,
+    waiting: Arc<[AtomicBool]>,
 ) -> Simulation {
     let _stopped = StopOnDrop(to_robot.clone());
     let mut overflow_log = OverflowLog::new(to_robot.len());
@@ -524,8 +552,11 @@ async fn step_loop(
             }
             false
         });
-        for (i, buffer) in to_robot.iter().enumerate() {
-            drain_host_buffer(&mut sim, i, buffer);
+        for (i, (buffer, flag)) in to_robot.iter().zip(waiting.iter()).enumerate() {
+            // Load before swapping: most flags are down, and a load does not take the line.
+            if flag.load(Ordering::Acquire) && flag.swap(false, Ordering::AcqRel) {
+                drain_host_buffer(&mut sim, i, buffer);
+            }
         }
         sim.step();
         overflow_log.check(&sim);
