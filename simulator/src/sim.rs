@@ -837,8 +837,8 @@ impl Simulation {
             }
             // Read while the robot's state is in this core's cache, so the serial passes below
             // visit only robots with something to pass on.
-            u8::from(r.firmware.has_outgoing()) * OUTGOING
-                | u8::from(!r.firmware.board().ir_out.is_empty()) * BEAMS
+            (u8::from(r.firmware.has_outgoing()) * OUTGOING)
+                | (u8::from(!r.firmware.board().ir_out.is_empty()) * BEAMS)
         };
         let mut served = std::mem::take(&mut self.served);
         if self.robots.len() >= PARALLEL_FROM {
