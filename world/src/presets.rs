@@ -512,7 +512,7 @@ mod tests {
                 let y = f64::from(i % 211) / 211.0 * w.arena.height_m * 1.1 - 0.02;
                 let (s, c) = (f64::from(i) * 0.37).sin_cos();
                 let spots: [Point2<f64>; 8] = std::array::from_fn(|k| {
-                    let lateral = (k as f64 - 3.5) * 0.004;
+                    let lateral = (k as f64 - 3.5) * 0.003;
                     Point2::new(x + lateral * s, y - lateral * c)
                 });
                 let together = w.track.floor_at_each(&spots);

@@ -553,7 +553,6 @@ impl GridIndex {
         }
     }
 
-    /// Tapes listed by the cell holding `p`, or `None` off the grid.
     /// The index cell holding `p`; `None` off the grid.
     fn cell_of(&self, p: Point2<f64>) -> Option<usize> {
         let fx = (p.x - self.origin.x) / self.cell;
