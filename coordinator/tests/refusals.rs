@@ -3,7 +3,7 @@
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -53,11 +53,40 @@ fn assert_refused(out: &Output, parts: &[&str]) -> String {
     stderr
 }
 
-/// A scratch directory of this test binary's own.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("coordinator-refusals-{}", std::process::id()));
+/// A file path in a scratch directory of its own, removed with the directory when dropped.
+struct Scratch {
+    dir: PathBuf,
+    file: PathBuf,
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.file
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.file
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// A path for the file `name`, in a directory that goes when the test is done with it.
+fn scratch(name: &str) -> Scratch {
+    let dir = std::env::temp_dir().join(format!(
+        "coordinator-refusals-{}-{name}",
+        std::process::id()
+    ));
     std::fs::create_dir_all(&dir).expect("scratch directory");
-    dir.join(name)
+    let file = dir.join(name);
+    Scratch { dir, file }
 }
 
 #[test]

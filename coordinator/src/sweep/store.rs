@@ -204,16 +204,32 @@ pub fn write_lines<T: Serialize>(path: &Path, records: &[T]) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn temp(name: &str) -> std::path::PathBuf {
+    /// A scratch directory removed when the test is done with it.
+    struct Temp(std::path::PathBuf);
+
+    impl Temp {
+        fn file(&self) -> std::path::PathBuf {
+            self.0.join("t.jsonl")
+        }
+    }
+
+    impl Drop for Temp {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+
+    fn temp(name: &str) -> Temp {
         let dir =
             std::env::temp_dir().join(format!("pf-sweep-store-{}-{name}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        dir.join("t.jsonl")
+        Temp(dir)
     }
 
     #[test]
     fn a_partial_last_line_is_cut_before_appending() {
-        let path = temp("partial");
+        let dir = temp("partial");
+        let path = dir.file();
         std::fs::write(&path, "{\"id\":\"a\",\"wall_s\":1.0}\n{\"id\":\"b\",\"wal").unwrap();
         let read: Vec<Timing> = read_lines(&path).unwrap();
         assert_eq!(read.len(), 1);
@@ -234,7 +250,8 @@ mod tests {
 
     #[test]
     fn a_bad_complete_line_is_named() {
-        let path = temp("bad");
+        let dir = temp("bad");
+        let path = dir.file();
         std::fs::write(&path, "{\"id\":\"a\",\"wall_s\":1.0}\nnonsense\n").unwrap();
         let e = read_lines::<Timing>(&path).unwrap_err().to_string();
         assert!(e.contains("line 2"), "{e}");
