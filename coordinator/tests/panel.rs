@@ -295,13 +295,15 @@ fn a_busy_panel_address_is_refused_before_the_run() {
 
 struct Browser {
     child: Child,
-    _dir: PathBuf,
+    /// Its profile directory, removed once the browser has exited.
+    dir: PathBuf,
 }
 
 impl Drop for Browser {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 
@@ -340,7 +342,7 @@ fn launch(exe: &Path) -> (Browser, String) {
         .expect("chromium starts");
     let browser = Browser {
         child,
-        _dir: dir.clone(),
+        dir: dir.clone(),
     };
     let port_file = dir.join("DevToolsActivePort");
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -712,4 +714,6 @@ fn the_panel_follows_a_replay() {
             "the replayed robot moves"
         );
     });
+    drop(c);
+    let _ = std::fs::remove_file(&path);
 }

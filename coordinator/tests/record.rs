@@ -10,10 +10,26 @@ use std::time::{Duration, Instant};
 use behaviours::Registry;
 use coordinator::{Instruments, Plan, Transport};
 
-fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("pocketfleet-record-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// One test's scratch directory, removed with its recordings when the test is done.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(test: &str) -> Self {
+        let dir =
+            std::env::temp_dir().join(format!("pocketfleet-record-{}-{test}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        Self(dir)
+    }
+
+    fn file(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 fn plan(behaviour: &str, transport: Transport) -> Plan {
@@ -48,7 +64,8 @@ fn messages(path: &Path) -> Vec<(String, serde_json::Value)> {
 
 #[test]
 fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
-    let path = temp("push.mcap");
+    let scratch = Scratch::new("push");
+    let path = scratch.file("push.mcap");
     let recorded = run(
         plan("cooperative_push", Transport::Sim),
         Instruments {
@@ -93,7 +110,7 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     );
 
     // A finished recording recovers to the same messages, chunk for chunk.
-    let again = temp("push-recovered.mcap");
+    let again = scratch.file("push-recovered.mcap");
     let kept = coordinator::recover::recover_file(&path, &again).unwrap();
     assert_eq!(kept.ending, coordinator::recover::Ending::Complete);
     assert_eq!(kept.messages, stats.messages);
@@ -182,7 +199,8 @@ fn coordinator(args: &[&std::ffi::OsStr]) -> std::process::Output {
 
 #[test]
 fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
-    let path = temp("killed.mcap");
+    let scratch = Scratch::new("killed");
+    let path = scratch.file("killed.mcap");
     let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
         .args(["--behaviour", "teleop", "--duration", "3000", "--record"])
         .arg(&path)
@@ -236,7 +254,7 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
     }
 
     // (c) `recover` adds the summary and indexes, keeping every message.
-    let fixed = temp("killed-fixed.mcap");
+    let fixed = scratch.file("killed-fixed.mcap");
     let out = coordinator(&[
         "recover".as_ref(),
         path.as_ref(),
@@ -279,14 +297,14 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
         at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
     }
     assert!(last_chunk > 0);
-    let cut = temp("cut-short.mcap");
+    let cut = scratch.file("cut-short.mcap");
     std::fs::write(&cut, &bytes[..last_chunk + 100]).unwrap();
     let out = coordinator(&["recover".as_ref(), cut.as_ref()]);
     let said = String::from_utf8_lossy(&out.stdout);
     println!("{said}");
     assert!(out.status.success(), "{said}");
     assert!(said.contains("the tail was cut"), "{said}");
-    let default_out = temp("cut-short.recovered.mcap");
+    let default_out = scratch.file("cut-short.recovered.mcap");
     let kept = mcap::MessageStream::new(&std::fs::read(&default_out).unwrap())
         .unwrap()
         .collect::<Result<Vec<_>, _>>()
@@ -300,32 +318,34 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
 
 #[test]
 fn recover_refuses_empty_and_foreign_files_clearly() {
-    let empty = temp("empty.mcap");
+    let scratch = Scratch::new("refuses");
+    let empty = scratch.file("empty.mcap");
     std::fs::write(&empty, b"").unwrap();
     let out = coordinator(&["recover".as_ref(), empty.as_ref()]);
     assert_eq!(out.status.code(), Some(2));
     let said = String::from_utf8_lossy(&out.stderr);
     assert!(said.contains("empty"), "{said}");
-    let text = temp("notes.mcap");
+    let text = scratch.file("notes.mcap");
     std::fs::write(&text, b"just some notes\n").unwrap();
     let out = coordinator(&["recover".as_ref(), text.as_ref()]);
     assert_eq!(out.status.code(), Some(2));
     let said = String::from_utf8_lossy(&out.stderr);
     assert!(said.contains("not an MCAP file"), "{said}");
-    assert!(!temp("notes.recovered.mcap").exists());
-    assert!(!temp("notes.recovered.mcap.partial").exists());
+    assert!(!scratch.file("notes.recovered.mcap").exists());
+    assert!(!scratch.file("notes.recovered.mcap.partial").exists());
 }
 
 #[test]
 fn garbage_and_cut_headers_are_clear_errors() {
-    let junk = temp("junk.mcap");
+    let scratch = Scratch::new("garbage");
+    let junk = scratch.file("junk.mcap");
     std::fs::write(&junk, b"definitely not MCAP").unwrap();
     let e = coordinator::replay::load(&junk).unwrap_err();
     assert!(format!("{e:#}").contains("not a readable PocketFleet recording"));
-    let missing = coordinator::replay::load(&temp("nothing-here.mcap")).unwrap_err();
+    let missing = coordinator::replay::load(&scratch.file("nothing-here.mcap")).unwrap_err();
     assert!(format!("{missing:#}").contains("reading"));
     // A valid MCAP magic and header with nothing after it.
-    let cut = temp("cut.mcap");
+    let cut = scratch.file("cut.mcap");
     std::fs::write(&cut, b"\x89MCAP0\r\n\x01").unwrap();
     assert!(coordinator::replay::load(&cut).is_err());
 }
