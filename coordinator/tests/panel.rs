@@ -295,15 +295,14 @@ fn a_busy_panel_address_is_refused_before_the_run() {
 
 struct Browser {
     child: Child,
-    /// Its profile directory, removed once the browser has exited.
-    dir: PathBuf,
+    /// Its profile directory, removed after `drop` has stopped the browser.
+    _dir: tempfile::TempDir,
 }
 
 impl Drop for Browser {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
-        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 
@@ -318,9 +317,11 @@ fn chromium() -> Option<PathBuf> {
 
 /// Starts headless Chromium and returns it with its first page's DevTools WebSocket address.
 fn launch(exe: &Path) -> (Browser, String) {
-    let dir = std::env::temp_dir().join(format!("pocketfleet-chromium-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let profile = tempfile::Builder::new()
+        .prefix("pocketfleet-chromium-")
+        .tempdir()
+        .unwrap();
+    let dir = profile.path().to_path_buf();
     let child = Command::new(exe)
         .args([
             "--headless",
@@ -342,7 +343,7 @@ fn launch(exe: &Path) -> (Browser, String) {
         .expect("chromium starts");
     let browser = Browser {
         child,
-        dir: dir.clone(),
+        _dir: profile,
     };
     let port_file = dir.join("DevToolsActivePort");
     let deadline = Instant::now() + Duration::from_secs(60);
@@ -668,7 +669,12 @@ fn panel_drives_robots_in_headless_chromium() {
 
 #[test]
 fn the_panel_follows_a_replay() {
-    let path = std::env::temp_dir().join(format!("pocketfleet-panel-{}.mcap", std::process::id()));
+    // Declared before the replaying coordinator, so it is removed after that has stopped.
+    let dir = tempfile::Builder::new()
+        .prefix("pocketfleet-panel-")
+        .tempdir()
+        .unwrap();
+    let path = dir.path().join("replay.mcap");
     let status = Command::new(env!("CARGO_BIN_EXE_coordinator"))
         .args(["--behaviour", "square_walk", "--robots", "2", "--record"])
         .arg(&path)
@@ -714,6 +720,4 @@ fn the_panel_follows_a_replay() {
             "the replayed robot moves"
         );
     });
-    drop(c);
-    let _ = std::fs::remove_file(&path);
 }

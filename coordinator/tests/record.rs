@@ -3,7 +3,7 @@
 //! file up to its last flushed chunk (checked with Python's reference reader too when it is
 //! installed), and `coordinator recover` gives such a file its summary.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -11,25 +11,11 @@ use behaviours::Registry;
 use coordinator::{Instruments, Plan, Transport};
 
 /// One test's scratch directory, removed with its recordings when the test is done.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(test: &str) -> Self {
-        let dir =
-            std::env::temp_dir().join(format!("pocketfleet-record-{}-{test}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        Self(dir)
-    }
-
-    fn file(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
+fn scratch() -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix("pocketfleet-record-")
+        .tempdir()
+        .unwrap()
 }
 
 fn plan(behaviour: &str, transport: Transport) -> Plan {
@@ -64,8 +50,8 @@ fn messages(path: &Path) -> Vec<(String, serde_json::Value)> {
 
 #[test]
 fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
-    let scratch = Scratch::new("push");
-    let path = scratch.file("push.mcap");
+    let scratch = scratch();
+    let path = scratch.path().join("push.mcap");
     let recorded = run(
         plan("cooperative_push", Transport::Sim),
         Instruments {
@@ -110,7 +96,7 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
     );
 
     // A finished recording recovers to the same messages, chunk for chunk.
-    let again = scratch.file("push-recovered.mcap");
+    let again = scratch.path().join("push-recovered.mcap");
     let kept = coordinator::recover::recover_file(&path, &again).unwrap();
     assert_eq!(kept.ending, coordinator::recover::Ending::Complete);
     assert_eq!(kept.messages, stats.messages);
@@ -199,8 +185,8 @@ fn coordinator(args: &[&std::ffi::OsStr]) -> std::process::Output {
 
 #[test]
 fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
-    let scratch = Scratch::new("killed");
-    let path = scratch.file("killed.mcap");
+    let scratch = scratch();
+    let path = scratch.path().join("killed.mcap");
     let mut child = Command::new(env!("CARGO_BIN_EXE_coordinator"))
         .args(["--behaviour", "teleop", "--duration", "3000", "--record"])
         .arg(&path)
@@ -254,7 +240,7 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
     }
 
     // (c) `recover` adds the summary and indexes, keeping every message.
-    let fixed = scratch.file("killed-fixed.mcap");
+    let fixed = scratch.path().join("killed-fixed.mcap");
     let out = coordinator(&[
         "recover".as_ref(),
         path.as_ref(),
@@ -297,14 +283,14 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
         at += 9 + u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
     }
     assert!(last_chunk > 0);
-    let cut = scratch.file("cut-short.mcap");
+    let cut = scratch.path().join("cut-short.mcap");
     std::fs::write(&cut, &bytes[..last_chunk + 100]).unwrap();
     let out = coordinator(&["recover".as_ref(), cut.as_ref()]);
     let said = String::from_utf8_lossy(&out.stdout);
     println!("{said}");
     assert!(out.status.success(), "{said}");
     assert!(said.contains("the tail was cut"), "{said}");
-    let default_out = scratch.file("cut-short.recovered.mcap");
+    let default_out = scratch.path().join("cut-short.recovered.mcap");
     let kept = mcap::MessageStream::new(&std::fs::read(&default_out).unwrap())
         .unwrap()
         .collect::<Result<Vec<_>, _>>()
@@ -318,34 +304,34 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
 
 #[test]
 fn recover_refuses_empty_and_foreign_files_clearly() {
-    let scratch = Scratch::new("refuses");
-    let empty = scratch.file("empty.mcap");
+    let scratch = scratch();
+    let empty = scratch.path().join("empty.mcap");
     std::fs::write(&empty, b"").unwrap();
     let out = coordinator(&["recover".as_ref(), empty.as_ref()]);
     assert_eq!(out.status.code(), Some(2));
     let said = String::from_utf8_lossy(&out.stderr);
     assert!(said.contains("empty"), "{said}");
-    let text = scratch.file("notes.mcap");
+    let text = scratch.path().join("notes.mcap");
     std::fs::write(&text, b"just some notes\n").unwrap();
     let out = coordinator(&["recover".as_ref(), text.as_ref()]);
     assert_eq!(out.status.code(), Some(2));
     let said = String::from_utf8_lossy(&out.stderr);
     assert!(said.contains("not an MCAP file"), "{said}");
-    assert!(!scratch.file("notes.recovered.mcap").exists());
-    assert!(!scratch.file("notes.recovered.mcap.partial").exists());
+    assert!(!scratch.path().join("notes.recovered.mcap").exists());
+    assert!(!scratch.path().join("notes.recovered.mcap.partial").exists());
 }
 
 #[test]
 fn garbage_and_cut_headers_are_clear_errors() {
-    let scratch = Scratch::new("garbage");
-    let junk = scratch.file("junk.mcap");
+    let scratch = scratch();
+    let junk = scratch.path().join("junk.mcap");
     std::fs::write(&junk, b"definitely not MCAP").unwrap();
     let e = coordinator::replay::load(&junk).unwrap_err();
     assert!(format!("{e:#}").contains("not a readable PocketFleet recording"));
-    let missing = coordinator::replay::load(&scratch.file("nothing-here.mcap")).unwrap_err();
+    let missing = coordinator::replay::load(&scratch.path().join("nothing-here.mcap")).unwrap_err();
     assert!(format!("{missing:#}").contains("reading"));
     // A valid MCAP magic and header with nothing after it.
-    let cut = scratch.file("cut.mcap");
+    let cut = scratch.path().join("cut.mcap");
     std::fs::write(&cut, b"\x89MCAP0\r\n\x01").unwrap();
     assert!(coordinator::replay::load(&cut).is_err());
 }

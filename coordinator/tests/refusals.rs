@@ -3,7 +3,6 @@
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -53,40 +52,12 @@ fn assert_refused(out: &Output, parts: &[&str]) -> String {
     stderr
 }
 
-/// A file path in a scratch directory of its own, removed with the directory when dropped.
-struct Scratch {
-    dir: PathBuf,
-    file: PathBuf,
-}
-
-impl std::ops::Deref for Scratch {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.file
-    }
-}
-
-impl AsRef<Path> for Scratch {
-    fn as_ref(&self) -> &Path {
-        &self.file
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.dir);
-    }
-}
-
-/// A path for the file `name`, in a directory that goes when the test is done with it.
-fn scratch(name: &str) -> Scratch {
-    let dir = std::env::temp_dir().join(format!(
-        "coordinator-refusals-{}-{name}",
-        std::process::id()
-    ));
-    std::fs::create_dir_all(&dir).expect("scratch directory");
-    let file = dir.join(name);
-    Scratch { dir, file }
+/// A scratch directory of one test's own, removed when it is dropped.
+fn scratch() -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix("coordinator-refusals-")
+        .tempdir()
+        .expect("scratch directory")
 }
 
 #[test]
@@ -122,7 +93,8 @@ fn unwritable_output_paths_are_refused_before_the_run() {
         assert!(started.elapsed() < Duration::from_secs(20));
     }
     // A run refused for another reason leaves no empty output file behind.
-    let report = scratch("refused.json");
+    let dir = scratch();
+    let report = dir.path().join("refused.json");
     let out = coordinator(&[
         "--behaviour",
         "square_walk",
@@ -146,7 +118,8 @@ fn worlds_without_room_for_the_robots_are_refused() {
     assert_refused(&out, &["serpentine:0", "expected serpentine:ROBOTS"]);
     let out = coordinator(&["--behaviour", "square_walk", "--robots", "5"]);
     assert_refused(&out, &["--robots 5", "room for 1 to 4 robots"]);
-    let empty = scratch("empty.toml");
+    let dir = scratch();
+    let empty = dir.path().join("empty.toml");
     std::fs::write(
         &empty,
         "name = \"empty\"\n[arena]\nwidth_m = 1.0\nheight_m = 1.0\n",
@@ -172,7 +145,8 @@ fn a_truncated_world_file_names_its_line_and_what_is_wrong() {
         .find("heading_deg = ")
         .expect("a heading in the open world")
         + 14;
-    let truncated = scratch("truncated.toml");
+    let dir = scratch();
+    let truncated = dir.path().join("truncated.toml");
     std::fs::write(&truncated, &text[..cut]).expect("world file written");
     let path = truncated.to_str().expect("utf-8 path");
     let out = coordinator(&["--behaviour", "square_walk", "--world", path]);

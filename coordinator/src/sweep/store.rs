@@ -205,31 +205,17 @@ mod tests {
     use super::*;
 
     /// A scratch directory removed when the test is done with it.
-    struct Temp(std::path::PathBuf);
-
-    impl Temp {
-        fn file(&self) -> std::path::PathBuf {
-            self.0.join("t.jsonl")
-        }
-    }
-
-    impl Drop for Temp {
-        fn drop(&mut self) {
-            let _ = std::fs::remove_dir_all(&self.0);
-        }
-    }
-
-    fn temp(name: &str) -> Temp {
-        let dir =
-            std::env::temp_dir().join(format!("pf-sweep-store-{}-{name}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        Temp(dir)
+    fn temp() -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix("pf-sweep-store-")
+            .tempdir()
+            .unwrap()
     }
 
     #[test]
     fn a_partial_last_line_is_cut_before_appending() {
-        let dir = temp("partial");
-        let path = dir.file();
+        let dir = temp();
+        let path = dir.path().join("t.jsonl");
         std::fs::write(&path, "{\"id\":\"a\",\"wall_s\":1.0}\n{\"id\":\"b\",\"wal").unwrap();
         let read: Vec<Timing> = read_lines(&path).unwrap();
         assert_eq!(read.len(), 1);
@@ -250,8 +236,8 @@ mod tests {
 
     #[test]
     fn a_bad_complete_line_is_named() {
-        let dir = temp("bad");
-        let path = dir.file();
+        let dir = temp();
+        let path = dir.path().join("t.jsonl");
         std::fs::write(&path, "{\"id\":\"a\",\"wall_s\":1.0}\nnonsense\n").unwrap();
         let e = read_lines::<Timing>(&path).unwrap_err().to_string();
         assert!(e.contains("line 2"), "{e}");
