@@ -74,7 +74,14 @@ fn main() {
     // `cargo test --benches` runs this unoptimised: keep that a smoke run.
     let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
     println!("robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz");
+    // `RTF_ROBOTS=1000` measures one team size only (for profiling).
+    let only: Option<usize> = std::env::var("RTF_ROBOTS")
+        .ok()
+        .and_then(|v| v.parse().ok());
     for robots in [1usize, 10, 100, 1000] {
+        if only.is_some_and(|n| n != robots) {
+            continue;
+        }
         let secs = if quick {
             0.05
         } else if robots >= 1000 {

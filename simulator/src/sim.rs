@@ -738,6 +738,16 @@ impl Simulation {
 
     /// Advances the world by one step of the clock.
     pub fn step(&mut self) {
+        if self.robots.len() >= PARALLEL_FROM && rayon::current_thread_index().is_none() {
+            // One hand-over to the pool per step instead of one per parallel pass: the caller
+            // sleeps once, and the passes split between workers that are already awake.
+            rayon::scope(|_| self.step_in_pool());
+        } else {
+            self.step_in_pool();
+        }
+    }
+
+    fn step_in_pool(&mut self) {
         // Physics starts on the step after the firmware's boot tick and every `physics_every`
         // steps from there, so a duty the main loop sets on its period moves the body at once.
         let k = self.physics_every;
