@@ -338,7 +338,7 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
         &discovered,
         origins.as_deref(),
         world,
-        &observer,
+        (&observer, hooks.watches_states()),
         deadline,
         shards.as_ref(),
     )
@@ -905,12 +905,13 @@ fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport
 
 /// Starts a robot actor per discovered robot and waits for each one's hello, at most `deadline`
 /// each. Refused robots, silent ones and two robots claiming one id end the experiment before it
-/// starts, with every robot started so far closed.
+/// starts, with every robot started so far closed. The observer hears every robot's events, and
+/// its states only when `observe_states`.
 async fn connect_all(
     found: &[Discovered],
     origins: Option<&[Pose]>,
     world: &World,
-    observer: &actix::Addr<Observer>,
+    (observer, observe_states): (&actix::Addr<Observer>, bool),
     deadline: Duration,
     shards: Option<&Shards>,
 ) -> Result<Vec<(u16, Robot)>> {
@@ -925,7 +926,9 @@ async fn connect_all(
             None => Robot::start(Arc::clone(&d.connector), config),
         };
         // Before any packet: replay checks the observer's view after each robot's k-th update.
-        robot.subscribe(observer.clone().recipient());
+        if observe_states {
+            robot.subscribe(observer.clone().recipient());
+        }
         robot.subscribe_events(observer.clone().recipient());
         let peer = d.connector.peer();
         let greeted = greet(&robot, d, deadline).await.and_then(|hello| {

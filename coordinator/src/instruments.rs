@@ -129,6 +129,15 @@ impl Hooks {
             .collect()
     }
 
+    /// Whether an instrument needs every reflected state: a run with none of them keeps the
+    /// observer off the state stream, where its own world model would double the supervisor's.
+    pub(crate) fn watches_states(&self) -> bool {
+        self.recorder.is_some()
+            || self.feed.is_some()
+            || self.replay.is_some()
+            || self.instruments.trails
+    }
+
     pub(crate) fn observer(&self, world: &World, sim: Option<SimHandle>) -> Addr<Observer> {
         let setup = ObserverSetup {
             track: Arc::new(world.track.clone()),

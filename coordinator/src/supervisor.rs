@@ -235,36 +235,10 @@ impl Supervisor {
         }
         match reply {
             Ok(Ok(reply)) => {
-                let world = self.snapshot_peek();
-                // Once a robot's move is held, its later moves in the same reply are held too:
-                // they were planned from where the held one would have left it.
-                let mut held_robots: Vec<u16> = Vec::new();
-                let before = self.held.len();
-                for intent in reply.intents {
-                    let id = intent.robot();
-                    if held_robots.contains(&id) && matches!(intent, Intent::Move { .. }) {
-                        self.held
-                            .push((world.time, intent, "follows a held move".into()));
-                        continue;
-                    }
-                    if !self.carry_out(intent, &world) {
-                        held_robots.push(id);
-                    }
-                }
-                // The behaviour hears what did not reach its robots.
-                if self.held.len() > before {
-                    if let Some(b) = self.behaviour.clone() {
-                        let held = self.held[before..]
-                            .iter()
-                            .map(|(_, i, why)| (*i, why.clone()))
-                            .collect();
-                        let reply = b.send(Held { held, world });
-                        ctx.spawn(
-                            reply
-                                .into_actor(self)
-                                .map(|r, act, ctx| act.on_reply(r, ctx)),
-                        );
-                    }
+                // Most replies to events carry no intent: the snapshot (a pointer per robot) is
+                // taken only for one that does.
+                if !reply.intents.is_empty() {
+                    self.carry_out_all(reply.intents, ctx);
                 }
                 if let Some(verdict) = reply.verdict {
                     self.finish(verdict, ctx);
@@ -290,6 +264,41 @@ impl Supervisor {
                 }
             }
             Err(e) => warn!(error = %e, "behaviour unreachable"),
+        }
+    }
+
+    /// Carries out a reply's intents in order and tells the behaviour which were held.
+    fn carry_out_all(&mut self, intents: Vec<Intent>, ctx: &mut Context<Self>) {
+        let world = self.snapshot_peek();
+        // Once a robot's move is held, its later moves in the same reply are held too: they were
+        // planned from where the held one would have left it.
+        let mut held_robots: Vec<u16> = Vec::new();
+        let before = self.held.len();
+        for intent in intents {
+            let id = intent.robot();
+            if held_robots.contains(&id) && matches!(intent, Intent::Move { .. }) {
+                self.held
+                    .push((world.time, intent, "follows a held move".into()));
+                continue;
+            }
+            if !self.carry_out(intent, &world) {
+                held_robots.push(id);
+            }
+        }
+        // The behaviour hears what did not reach its robots.
+        if self.held.len() > before {
+            if let Some(b) = self.behaviour.clone() {
+                let held = self.held[before..]
+                    .iter()
+                    .map(|(_, i, why)| (*i, why.clone()))
+                    .collect();
+                let reply = b.send(Held { held, world });
+                ctx.spawn(
+                    reply
+                        .into_actor(self)
+                        .map(|r, act, ctx| act.on_reply(r, ctx)),
+                );
+            }
         }
     }
 
