@@ -17,6 +17,10 @@
 //! Built without optimisations (`cargo test --benches`), every phase runs only a few milliseconds.
 //! `INGEST_LINKS=N` runs only the row for N links.
 
+/// The coordinator binary's allocator, so the bench measures what it runs.
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};

@@ -1,6 +1,10 @@
 //! `coordinator --behaviour NAME`: one supervised multi-robot experiment, on simulated robots by
 //! default, ending with a report; the exit status says whether the behaviour succeeded.
 
+/// Packets and state batches cross threads: mimalloc frees another thread's blocks cheaply.
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
