@@ -6,6 +6,10 @@
 //! second, the cost per robot per millisecond of simulated time, and that cost relative to the
 //! same size at 1 kHz measured in the same process.
 
+/// The coordinator binary's allocator, so the bench measures what it runs.
+#[global_allocator]
+static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use std::time::{Duration, Instant};
 
 use protocol::packets::{LineFollow, Ping};
