@@ -97,10 +97,17 @@ struct Dropped {
     to_host: (u64, u64),
 }
 
+/// Where the stepping task hands a robot's packets when a reader has asked for them directly
+/// ([`LinkSender::set_sink`]): `Some(packet)`, or `None` once the simulation has stopped. It returns
+/// `false` once its reader is gone.
+pub type Sink = Box<dyn FnMut(Option<Vec<u8>>) -> bool + Send>;
+
 /// Host packets on their way into the simulation, shared by a link end and the stepping task.
 struct HostBuffer {
     inbox: Mutex<(PacketQueue, Dropped)>,
     stopped: AtomicBool,
+    /// A reader's sink with its key, which takes the robot's packets instead of the channel.
+    sink: Mutex<Option<(u64, Sink)>>,
     /// Every robot's "something to drain" flag, in one allocation, so the stepping task finds the
     /// few buffers to drain each step without touching every robot's lock.
     waiting: Arc<[AtomicBool]>,
@@ -112,6 +119,7 @@ impl HostBuffer {
         Self {
             inbox: Mutex::new((PacketQueue::new(LINK_BUFFER_BYTES), Dropped::default())),
             stopped: AtomicBool::new(false),
+            sink: Mutex::new(None),
             waiting,
             index,
         }
@@ -125,6 +133,10 @@ impl HostBuffer {
     fn lock(&self) -> std::sync::MutexGuard<'_, (PacketQueue, Dropped)> {
         // The guarded data stays consistent whatever panicked while holding it.
         self.inbox.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn sink(&self) -> std::sync::MutexGuard<'_, Option<(u64, Sink)>> {
+        self.sink.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
     fn send(&self, packet: &[u8]) -> bool {
@@ -161,6 +173,9 @@ impl Drop for StopOnDrop {
     fn drop(&mut self) {
         for b in &self.0 {
             b.stopped.store(true, Ordering::Release);
+            if let Some((_, mut sink)) = b.sink().take() {
+                sink(None);
+            }
         }
     }
 }
@@ -244,6 +259,23 @@ impl LinkSender {
     /// Opens the link.
     pub fn connect(&self) {
         let _ = self.commands.send(Command::Connect(self.index));
+    }
+    /// From now on the stepping task hands the robot's packets to `sink` as they arrive, instead
+    /// of to the receiver half: one task's wake less per packet. Replaces an earlier sink; returns
+    /// the key that [`clear_sink`](Self::clear_sink) takes.
+    pub fn set_sink(&self, sink: Sink) -> u64 {
+        static KEYS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+        let key = KEYS.fetch_add(1, Ordering::Relaxed);
+        *self.to_robot.sink() = Some((key, sink));
+        key
+    }
+    /// Removes the sink set with `key`, if it is still the one set; the robot's packets go to the
+    /// receiver half again.
+    pub fn clear_sink(&self, key: u64) {
+        let mut slot = self.to_robot.sink();
+        if slot.as_ref().is_some_and(|(k, _)| *k == key) {
+            *slot = None;
+        }
     }
     /// Closes the link.
     pub fn disconnect(&self) {
@@ -567,8 +599,18 @@ async fn step_loop(
             overflow_log.check(&sim);
         }
         for (i, tx) in from_robot.iter().enumerate() {
+            let mut sink = None;
             while let Some(p) = sim.host_recv(i) {
-                let _ = tx.send(p);
+                // Locked only for a robot with a packet due, and once per step.
+                match sink.get_or_insert_with(|| to_robot[i].sink()).as_mut() {
+                    // A sink whose reader has gone drops the packet, as a closed link would.
+                    Some((_, sink)) => {
+                        sink(Some(p));
+                    }
+                    None => {
+                        let _ = tx.send(p);
+                    }
+                }
             }
         }
         match pace {

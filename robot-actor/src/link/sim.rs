@@ -51,38 +51,35 @@ impl Connector for SimConnector {
             let (events, rx) = mpsc::unbounded_channel();
             let counters = Arc::new(LinkCounters::default());
             let c = Arc::clone(&counters);
-            // Only one link at a time reads this robot's packets: the previous one's task lets go
-            // of the receiver when its owner drops the sender.
+            // Only one link at a time reads this robot's packets: the previous one lets go of the
+            // receiver when its owner drops the sender.
             let mut incoming = from_robot.lock_owned().await;
             while incoming.try_recv().is_ok() {}
+            // The stepping task hands packets straight to the actor's channel: no task of ours
+            // to wake in between.
+            let to_actor = events.clone();
+            let key = sender.set_sink(Box::new(move |p| match p {
+                Some(p) => {
+                    LinkCounters::bump(&c.packets_in);
+                    to_actor.send(LinkEvent::Packet(p)).is_ok()
+                }
+                None => {
+                    let _ = to_actor.send(LinkEvent::Closed(None));
+                    false
+                }
+            }));
             sender.connect();
+            let c = Arc::clone(&counters);
             tokio::spawn(async move {
-                loop {
-                    tokio::select! {
-                        out = to_robot.recv() => match out {
-                            Some(p) => {
-                                LinkCounters::bump(&c.packets_out);
-                                if !sender.send(p) {
-                                    let _ = events.send(LinkEvent::Closed(None));
-                                    break;
-                                }
-                            }
-                            None => break,
-                        },
-                        inc = incoming.recv() => match inc {
-                            Some(p) => {
-                                LinkCounters::bump(&c.packets_in);
-                                if events.send(LinkEvent::Packet(p)).is_err() {
-                                    break;
-                                }
-                            }
-                            None => {
-                                let _ = events.send(LinkEvent::Closed(None));
-                                break;
-                            }
-                        },
+                let _reading = incoming;
+                while let Some(p) = to_robot.recv().await {
+                    LinkCounters::bump(&c.packets_out);
+                    if !sender.send(p) {
+                        let _ = events.send(LinkEvent::Closed(None));
+                        break;
                     }
                 }
+                sender.clear_sink(key);
                 sender.disconnect();
             });
             Ok(Link {
