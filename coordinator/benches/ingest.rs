@@ -45,6 +45,9 @@ struct Taken {
     last_ns: AtomicU64,
     /// Frame → model latencies, nanoseconds, while recording.
     latencies: Mutex<Vec<u64>>,
+    /// Whether latencies are being recorded: only at the offered load, so the saturation phase
+    /// does not also pay for growing the record.
+    recording: std::sync::atomic::AtomicBool,
 }
 
 /// Applies batches to the world model, as the supervisor does, and records latencies.
@@ -61,14 +64,20 @@ impl Actor for Ingest {
 impl Handler<StateBatch> for Ingest {
     type Result = ();
     fn handle(&mut self, batch: StateBatch, _: &mut Context<Self>) {
-        let mut latencies = self.taken.latencies.lock().unwrap();
+        let mut latencies = self
+            .taken
+            .recording
+            .load(Ordering::Relaxed)
+            .then(|| self.taken.latencies.lock().unwrap());
         let mut now = 0;
         for u in &batch.0 {
             self.model.apply(u);
             let sent =
                 (u64::from(u.state.link.tx_packets) << 32) | u64::from(u.state.link.rx_packets);
             now = self.epoch.elapsed().as_nanos() as u64;
-            latencies.push(now.saturating_sub(sent));
+            if let Some(l) = latencies.as_mut() {
+                l.push(now.saturating_sub(sent));
+            }
         }
         self.taken
             .frames
@@ -225,7 +234,14 @@ async fn measure(links: usize, wall: Duration) -> Row {
     let saturation = took as f64 / ((taken.last_ns.load(Ordering::Relaxed) - t0) as f64 * 1e-9);
 
     // (b) The offered load, paced; only its latencies are kept.
-    taken.latencies.lock().unwrap().clear();
+    {
+        let mut l = taken.latencies.lock().unwrap();
+        // Written once here, so recording takes no page faults.
+        l.clear();
+        l.resize((OFFERED_PER_S * wall.as_secs_f64() * 1.1) as usize, 0);
+        l.clear();
+    }
+    taken.recording.store(true, Ordering::Relaxed);
     let t0 = epoch.elapsed().as_nanos() as u64;
     let base = taken.frames.load(Ordering::Relaxed);
     drive(
@@ -238,6 +254,7 @@ async fn measure(links: usize, wall: Duration) -> Row {
     .await;
     let offered_rate = (taken.frames.load(Ordering::Relaxed) - base) as f64
         / ((taken.last_ns.load(Ordering::Relaxed) - t0) as f64 * 1e-9);
+    taken.recording.store(false, Ordering::Relaxed);
     let mut l = std::mem::take(&mut *taken.latencies.lock().unwrap());
     l.sort_unstable();
     let (p50, p99) = (percentile(&l, 50), percentile(&l, 99));
