@@ -172,8 +172,10 @@ struct StopOnDrop(Vec<Arc<HostBuffer>>);
 impl Drop for StopOnDrop {
     fn drop(&mut self) {
         for b in &self.0 {
+            // Under the sink's lock, so a sink set at the same time hears of the stop either way.
+            let mut slot = b.sink();
             b.stopped.store(true, Ordering::Release);
-            if let Some((_, mut sink)) = b.sink().take() {
+            if let Some((_, mut sink)) = slot.take() {
                 sink(None);
             }
         }
@@ -262,11 +264,18 @@ impl LinkSender {
     }
     /// From now on the stepping task hands the robot's packets to `sink` as they arrive, instead
     /// of to the receiver half: one task's wake less per packet. Replaces an earlier sink; returns
-    /// the key that [`clear_sink`](Self::clear_sink) takes.
-    pub fn set_sink(&self, sink: Sink) -> u64 {
+    /// the key that [`clear_sink`](Self::clear_sink) takes. Once the simulation has stopped, the
+    /// sink hears so at once.
+    pub fn set_sink(&self, mut sink: Sink) -> u64 {
         static KEYS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         let key = KEYS.fetch_add(1, Ordering::Relaxed);
-        *self.to_robot.sink() = Some((key, sink));
+        let mut slot = self.to_robot.sink();
+        if self.to_robot.stopped.load(Ordering::Acquire) {
+            drop(slot);
+            sink(None);
+        } else {
+            *slot = Some((key, sink));
+        }
         key
     }
     /// Removes the sink set with `key`, if it is still the one set; the robot's packets go to the

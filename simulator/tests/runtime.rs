@@ -91,3 +91,61 @@ async fn a_kick_lands_at_its_simulated_time_and_poses_report_it() {
     handle.stop();
     let _ = task.await;
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_sink_takes_the_robots_packets_and_hears_the_stop() {
+    let sim = Simulation::new(presets::preset("oval").unwrap(), SimConfig::default());
+    let (handle, ends, task) = runtime::spawn(sim, Pace::TokioClock);
+    let (sender, mut channel) = ends.into_iter().next().unwrap().split();
+    let (tx, mut sunk) = tokio::sync::mpsc::unbounded_channel();
+    let key = sender.set_sink(Box::new(move |p| tx.send(p).is_ok()));
+    sender.connect();
+    let hello = loop {
+        let p = sunk
+            .recv()
+            .await
+            .unwrap()
+            .expect("a packet before the stop");
+        if let Ok(AnyPacket::Hello(h)) = protocol::decode(&p) {
+            break h;
+        }
+    };
+    assert_eq!({ hello.robot_id }, sender.robot_id);
+    // While the sink is set, nothing goes to the channel.
+    assert!(channel.try_recv().is_err());
+    // Cleared, the packets (the answer to a ping) come through the channel again.
+    sender.clear_sink(key);
+    sender.send(encode(Ping {
+        seq: 7,
+        host_time_us: 0,
+    }));
+    let pong = loop {
+        if let Ok(AnyPacket::Pong(p)) = protocol::decode(&channel.recv().await.unwrap()) {
+            break p;
+        }
+    };
+    assert_eq!({ pong.seq }, 7);
+    // A sink set again hears the simulation's stop; one set after it hears so at once.
+    let (tx, mut sunk) = tokio::sync::mpsc::unbounded_channel();
+    sender.set_sink(Box::new(move |p| tx.send(p).is_ok()));
+    handle.stop();
+    task.await.unwrap();
+    let heard = tokio::time::timeout(Duration::from_secs(1), async {
+        while let Some(p) = sunk.recv().await {
+            if p.is_none() {
+                return true;
+            }
+        }
+        false
+    })
+    .await;
+    assert_eq!(heard, Ok(true), "the sink heard the stop");
+    assert!(sunk.recv().await.is_none(), "the stop drops the sink");
+    let (tx, mut late) = tokio::sync::mpsc::unbounded_channel();
+    sender.set_sink(Box::new(move |p| tx.send(p).is_ok()));
+    assert_eq!(
+        late.try_recv(),
+        Ok(None),
+        "a sink set after the stop hears it at once"
+    );
+}
