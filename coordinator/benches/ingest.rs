@@ -21,7 +21,7 @@
 #[global_allocator]
 static ALLOC: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -47,7 +47,7 @@ struct Taken {
     latencies: Mutex<Vec<u64>>,
     /// Whether latencies are being recorded: only at the offered load, so the saturation phase
     /// does not also pay for growing the record.
-    recording: std::sync::atomic::AtomicBool,
+    recording: AtomicBool,
 }
 
 /// Applies batches to the world model, as the supervisor does, and records latencies.
