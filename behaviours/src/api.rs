@@ -103,15 +103,54 @@ pub struct Encounter {
     pub at: Duration,
 }
 
+/// Every robot's view, in id order, behind one shared pointer: cloning it or a snapshot copies
+/// no view.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Robots(pub Arc<Vec<Arc<RobotView>>>);
+
+impl std::ops::Deref for Robots {
+    type Target = [Arc<RobotView>];
+    fn deref(&self) -> &Self::Target {
+        &self.0
+    }
+}
+
+impl Robots {
+    /// The list to change, copied first if another snapshot shares it.
+    pub fn make_mut(&mut self) -> &mut Vec<Arc<RobotView>> {
+        Arc::make_mut(&mut self.0)
+    }
+}
+
+impl<'a> IntoIterator for &'a Robots {
+    type Item = &'a Arc<RobotView>;
+    type IntoIter = std::slice::Iter<'a, Arc<RobotView>>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.0.iter()
+    }
+}
+
+impl FromIterator<Arc<RobotView>> for Robots {
+    fn from_iter<I: IntoIterator<Item = Arc<RobotView>>>(iter: I) -> Self {
+        Self(Arc::new(iter.into_iter().collect()))
+    }
+}
+
+impl From<Vec<Arc<RobotView>>> for Robots {
+    fn from(v: Vec<Arc<RobotView>>) -> Self {
+        Self(Arc::new(v))
+    }
+}
+
 /// Everything a behaviour is shown at one instant.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WorldSnapshot {
     /// Time since the experiment started.
     pub time: Duration,
-    /// Every robot, in id order. Views are shared with the world model and between snapshots:
-    /// taking a snapshot copies a pointer per robot, and only a robot whose state changed since
-    /// is copied again.
-    pub robots: Vec<Arc<RobotView>>,
+    /// Every robot, in id order. The list and its views are shared with the world model and
+    /// between snapshots: a snapshot copies a pointer per robot at most, and only a robot whose
+    /// state changed since is copied again.
+    pub robots: Robots,
     /// Encounters since the previous snapshot.
     pub encounters: Vec<Encounter>,
     /// Arena size, metres.

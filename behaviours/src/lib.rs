@@ -18,8 +18,8 @@ pub mod traffic_control;
 pub use actor::BehaviourActor;
 pub use api::{
     Behaviour, BehaviourConfig, Constructor, Encounter, Entry, Intent, Localisation,
-    LocalisationEvent, LookedUp, PoseUncertainty, Registry, RobotView, TrackPosition, Verdict,
-    WorldSnapshot,
+    LocalisationEvent, LookedUp, PoseUncertainty, Registry, RobotView, Robots, TrackPosition,
+    Verdict, WorldSnapshot,
 };
 pub use event::{Event, Obstacle, Sighting};
 pub use evidence::{Odometer, Stall};

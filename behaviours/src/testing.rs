@@ -46,7 +46,7 @@ pub fn world() -> WorldBuilder {
     WorldBuilder {
         snapshot: WorldSnapshot {
             time: Duration::ZERO,
-            robots: Vec::new(),
+            robots: Default::default(),
             encounters: Vec::new(),
             arena: (1.0, 1.0),
         },
@@ -61,15 +61,15 @@ impl WorldBuilder {
             y,
             theta: heading_deg.to_radians(),
         };
-        self.snapshot.robots.retain(|r| r.id != id);
-        self.snapshot.robots.push(Arc::new(RobotView {
+        self.snapshot.robots.make_mut().retain(|r| r.id != id);
+        self.snapshot.robots.make_mut().push(Arc::new(RobotView {
             id,
             connected: true,
             pose,
             odometry: pose,
             ..Default::default()
         }));
-        self.snapshot.robots.sort_by_key(|r| r.id);
+        self.snapshot.robots.make_mut().sort_by_key(|r| r.id);
         self
     }
 
@@ -101,7 +101,13 @@ impl WorldBuilder {
 
     /// Any other change to robot `id`'s view.
     pub fn with(mut self, id: u16, change: impl FnOnce(&mut RobotView)) -> Self {
-        if let Some(r) = self.snapshot.robots.iter_mut().find(|r| r.id == id) {
+        if let Some(r) = self
+            .snapshot
+            .robots
+            .make_mut()
+            .iter_mut()
+            .find(|r| r.id == id)
+        {
             change(Arc::make_mut(r));
         }
         self

@@ -903,10 +903,10 @@ fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport
         .collect()
 }
 
-/// Starts a robot actor per discovered robot and waits for each one's hello, at most `deadline`
-/// each. Refused robots, silent ones and two robots claiming one id end the experiment before it
-/// starts, with every robot started so far closed. The observer hears every robot's events, and
-/// its states only when `observe_states`.
+/// Starts a robot actor per discovered robot and waits for every hello at once, at most
+/// `deadline` each. Refused robots, silent ones and two robots claiming one id end the experiment
+/// before it starts, with every robot closed; the first such problem in discovery order is the one
+/// reported. The observer hears every robot's events, and its states only when `observe_states`.
 async fn connect_all(
     found: &[Discovered],
     origins: Option<&[Pose]>,
@@ -915,7 +915,7 @@ async fn connect_all(
     deadline: Duration,
     shards: Option<&Shards>,
 ) -> Result<Vec<(u16, Robot)>> {
-    let mut robots: Vec<(u16, Robot, String)> = Vec::new();
+    let mut started: Vec<Robot> = Vec::with_capacity(found.len());
     for (i, d) in found.iter().enumerate() {
         let config = RobotConfig {
             origin: origins.and_then(|o| o.get(i).copied()).unwrap_or_default(),
@@ -930,8 +930,20 @@ async fn connect_all(
             robot.subscribe(observer.clone().recipient());
         }
         robot.subscribe_events(observer.clone().recipient());
+        started.push(robot);
+    }
+    let hellos = futures::future::join_all(
+        started
+            .iter()
+            .zip(found)
+            .map(|(r, d)| greet(r, d, deadline)),
+    )
+    .await;
+    let mut robots: Vec<(u16, Robot, String)> = Vec::with_capacity(found.len());
+    let mut failure = None;
+    for ((robot, d), greeted) in started.into_iter().zip(found).zip(hellos) {
         let peer = d.connector.peer();
-        let greeted = greet(&robot, d, deadline).await.and_then(|hello| {
+        let greeted = greeted.and_then(|hello| {
             match robots.iter().find(|(id, _, _)| *id == hello.robot_id) {
                 Some((id, _, first)) => Err(anyhow!(
                     "robots at {first} and {peer} both say they are robot {id}: every robot \
@@ -941,13 +953,15 @@ async fn connect_all(
             }
         });
         let hello = match greeted {
-            Ok(hello) => hello,
+            Ok(hello) if failure.is_none() => hello,
+            Ok(_) => {
+                robot.close();
+                continue;
+            }
             Err(e) => {
                 robot.close();
-                for (_, r, _) in &robots {
-                    r.close();
-                }
-                return Err(e);
+                failure.get_or_insert(e);
+                continue;
             }
         };
         if origins.is_none() {
@@ -962,6 +976,12 @@ async fn connect_all(
         }
         tracing::info!(robot = { hello.robot_id }, %peer, "connected");
         robots.push((hello.robot_id, robot, peer));
+    }
+    if let Some(e) = failure {
+        for (_, r, _) in &robots {
+            r.close();
+        }
+        return Err(e);
     }
     Ok(robots.into_iter().map(|(id, r, _)| (id, r)).collect())
 }

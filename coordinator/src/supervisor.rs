@@ -427,7 +427,7 @@ impl Supervisor {
     fn snapshot_peek(&self) -> WorldSnapshot {
         WorldSnapshot {
             time: Instant::now() - self.started_at,
-            robots: self.model.shared_views(),
+            robots: behaviours::Robots(self.model.shared_views()),
             encounters: Vec::new(),
             arena: self.arena,
         }

@@ -3,7 +3,7 @@
 //! and a recorder or panel reads concurrently.
 
 use std::f64::consts::PI;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use behaviours::{Localisation, Pose, PoseUncertainty, RobotView};
 use dashmap::DashMap;
@@ -267,12 +267,28 @@ fn junction_zones(track: &Track) -> Vec<(Point2<f64>, f64)> {
         .collect()
 }
 
+/// The views in id order, kept between snapshots: a snapshot with few changed robots costs a
+/// lookup per changed robot instead of a pass over the map and a sort.
+#[derive(Default)]
+struct Ordered {
+    /// Every view, in id order.
+    views: Arc<Vec<Arc<RobotView>>>,
+    /// The ids of `views`, in the same order.
+    ids: Vec<u16>,
+    /// Robots whose view changed since `views` was brought up to date.
+    dirty: Vec<u16>,
+    /// A robot was added: `views` must be rebuilt.
+    stale: bool,
+}
+
 /// The shared world model.
 #[derive(Clone)]
 pub struct WorldModel {
     /// Each view behind its own `Arc`, so a snapshot shares the views instead of copying them;
     /// an update copies a view only while a snapshot still holds it (`Arc::make_mut`).
     robots: Arc<DashMap<u16, Arc<RobotView>>>,
+    /// The views in id order as the last snapshot saw them, and which robots changed since.
+    ordered: Arc<Mutex<Ordered>>,
     estimates: Arc<DashMap<u16, Estimate>>,
     track: Arc<Track>,
     /// Nodes where three or more tapes meet, and how far around each the tapes are too close
@@ -286,6 +302,7 @@ impl WorldModel {
         let junctions = junction_zones(&track);
         Self {
             robots: Arc::new(DashMap::new()),
+            ordered: Arc::default(),
             estimates: Arc::new(DashMap::new()),
             track,
             junctions: Arc::new(junctions),
@@ -304,6 +321,7 @@ impl WorldModel {
 
     /// Adds a robot that has not reported yet.
     pub fn add(&self, id: u16) {
+        self.ordered().stale = true;
         self.robots.insert(
             id,
             Arc::new(RobotView {
@@ -506,6 +524,7 @@ impl WorldModel {
             None
         };
         if let Some(mut entry) = self.robots.get_mut(&u.robot_id) {
+            self.changed(u.robot_id);
             let view = Arc::make_mut(&mut entry);
             view.connected = true;
             view.pose = pose;
@@ -807,6 +826,7 @@ impl WorldModel {
     /// Marks a robot's link as down.
     pub fn lost(&self, id: u16) {
         if let Some(mut v) = self.robots.get_mut(&id) {
+            self.changed(id);
             Arc::make_mut(&mut v).connected = false;
         }
     }
@@ -816,16 +836,53 @@ impl WorldModel {
         self.shared_views().iter().map(|v| (**v).clone()).collect()
     }
 
-    /// Every robot, in id order, sharing the model's views: a pointer per robot, not a copy.
-    pub fn shared_views(&self) -> Vec<Arc<RobotView>> {
-        let mut v: Vec<(u16, Arc<RobotView>)> = self
-            .robots
-            .iter()
-            .map(|e| (*e.key(), Arc::clone(e.value())))
-            .collect();
-        // Sorted by the map's keys: reading each view's id would visit every view's memory.
-        v.sort_unstable_by_key(|&(id, _)| id);
-        v.into_iter().map(|(_, view)| view).collect()
+    /// Every robot, in id order, sharing the model's views: the list is shared with the last
+    /// snapshot and only the robots that changed since are looked up again.
+    pub fn shared_views(&self) -> Arc<Vec<Arc<RobotView>>> {
+        let mut guard = self.ordered();
+        let o = &mut *guard;
+        if o.stale {
+            let mut v: Vec<(u16, Arc<RobotView>)> = self
+                .robots
+                .iter()
+                .map(|e| (*e.key(), Arc::clone(e.value())))
+                .collect();
+            // Sorted by the map's keys: reading each view's id would visit every view's memory.
+            v.sort_unstable_by_key(|&(id, _)| id);
+            o.ids = v.iter().map(|&(id, _)| id).collect();
+            o.views = Arc::new(v.into_iter().map(|(_, view)| view).collect());
+            o.stale = false;
+            o.dirty.clear();
+        } else if !o.dirty.is_empty() {
+            // Copies the list only while an earlier snapshot still holds it.
+            let views = Arc::make_mut(&mut o.views);
+            for id in o.dirty.drain(..) {
+                if let (Ok(k), Some(view)) = (o.ids.binary_search(&id), self.robots.get(&id)) {
+                    views[k] = Arc::clone(&view);
+                }
+            }
+        }
+        Arc::clone(&o.views)
+    }
+
+    fn ordered(&self) -> std::sync::MutexGuard<'_, Ordered> {
+        // The list is rebuilt whole when stale, so a panic while it was held loses nothing.
+        self.ordered.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Notes that robot `id`'s view is about to change, for the next snapshot.
+    fn changed(&self, id: u16) {
+        let mut o = self.ordered();
+        if o.stale {
+            return;
+        }
+        // A model nobody takes snapshots of would otherwise grow the list without end.
+        if o.dirty.len() >= o.ids.len() {
+            o.stale = true;
+            o.dirty.clear();
+        } else {
+            o.dirty.push(id);
+        }
     }
 
     /// Every robot's localisation record so far, in id order (time lost counts an episode still
@@ -856,6 +913,58 @@ impl WorldModel {
 mod tests {
     use super::*;
     use simulator::world::presets;
+
+    /// A snapshot keeps the world as it was taken; the next one shows every robot that changed
+    /// since, shares the views of those that did not, and takes in robots added and lost.
+    #[test]
+    fn snapshots_follow_every_change_and_keep_their_own_time() {
+        let world = presets::grid(4, 4, 1);
+        let model = WorldModel::new(Arc::new(world.track.clone()));
+        for id in [3, 1, 2] {
+            model.add(id);
+        }
+        let update = |id: u16, x: f64| StateUpdated {
+            robot_id: id,
+            at: tokio::time::Instant::now(),
+            state: protocol::RobotState::default(),
+            reduced: false,
+            pose: Pose {
+                x,
+                y: 0.0,
+                theta: 0.0,
+            },
+        };
+        let ids = |v: &[Arc<RobotView>]| v.iter().map(|r| r.id).collect::<Vec<_>>();
+        let first = model.shared_views();
+        assert_eq!(ids(&first), [1, 2, 3]);
+        model.apply(&update(2, 0.5));
+        let second = model.shared_views();
+        assert!(!first[1].connected, "the earlier snapshot changed");
+        assert!(second[1].connected && second[1].odometry.x == 0.5);
+        assert!(Arc::ptr_eq(&first[0], &second[0]) && Arc::ptr_eq(&first[2], &second[2]));
+        model.lost(2);
+        model.add(0);
+        let third = model.shared_views();
+        assert_eq!(ids(&third), [0, 1, 2, 3]);
+        assert!(!third[2].connected && third[2].odometry.x == 0.5);
+        // More changes than robots between two snapshots, as the observer's model has.
+        for k in 0..20 {
+            model.apply(&update(3, f64::from(k) * 0.01));
+        }
+        let fourth = model.shared_views();
+        assert!(
+            (fourth[3].odometry.x - 0.19).abs() < 1e-12,
+            "{}",
+            fourth[3].odometry.x
+        );
+        for v in fourth.iter() {
+            assert!(
+                Arc::ptr_eq(v, &model.robots().get(&v.id).unwrap()),
+                "robot {}",
+                v.id
+            );
+        }
+    }
 
     /// A simulated unicycle following the oval's tape (it steers its sensor onto the tape ahead,
     /// weaving a little), its odometry drifting in heading by 2° per metre: the model keeps its
