@@ -1122,6 +1122,16 @@ fn drive_robot(
     let jammed = r.fault == Some(BodyFault::JammedWheels);
     let counting = r.fault != Some(BodyFault::DeadEncoders);
     let omega_start = [r.wheels[0].omega, r.wheels[1].omega];
+    let v_body = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
+    let w_body = f64::from(body.angvel());
+    let still = |w: &WheelState| w.omega == 0.0 && w.current_a == 0.0;
+    if pwm == (0, 0) && r.wheels.iter().all(still) && v_body == [0.0; 2] && w_body == 0.0 {
+        // At rest with the motors off nothing turns, pushes or draws current: the step would
+        // compute zeros. Only the battery's idle drain goes on.
+        r.current_a = spec.battery.idle_a;
+        r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
+        return (v_body, w_body);
+    }
     for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
         if jammed {
             w.jam(&spec.motor, f64::from(duty) / 1000.0, volts);
@@ -1135,8 +1145,8 @@ fn drive_robot(
     let (s, c) = theta.sin_cos();
     let fwd = [c, s];
     let left = [-s, c];
-    let mut v = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
-    let mut omega = f64::from(body.angvel());
+    let mut v = v_body;
+    let mut omega = w_body;
     let grip = spec.tyre_friction * mass * GRAVITY * 0.5 * dt;
     for (k, side) in [(0usize, 1.0f64), (1, -1.0)] {
         let half = side * spec.wheel_gauge_m * 0.5;
