@@ -49,11 +49,16 @@ pub(super) fn push(to: &Recipient<StateBatch>, u: StateUpdated) {
 /// Sends every state queued on this thread. A robot calls it before it sends an event, so a
 /// subscriber still hears of a robot's states and events in the order they happened.
 pub(super) fn flush() {
-    let batches = PENDING.with_borrow_mut(|p| {
+    PENDING.with_borrow_mut(|p| {
         p.flush_spawned = false;
-        std::mem::take(&mut p.batches)
+        // The subscribers stay listed, so a flush clones no address (an atomic count each, and
+        // a wake-up check on drop); the ones gone are dropped. Sending only queues the batch and
+        // wakes the subscriber's task: it cannot come back here.
+        p.batches.retain(|(to, _)| to.connected());
+        for (to, states) in &mut p.batches {
+            if !states.is_empty() {
+                to.do_send(StateBatch(std::mem::take(states)));
+            }
+        }
     });
-    for (to, states) in batches {
-        to.do_send(StateBatch(states));
-    }
 }
