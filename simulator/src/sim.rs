@@ -486,7 +486,7 @@ impl Simulation {
         };
         // Centimetre scale: allowed penetration and sleep thresholds shrink to suit 48 mm robots.
         params.length_unit = 0.01;
-        // The contact solver's substeps stay at most SOLVER_SUBSTEP long whatever the physics
+        // The contact solver's substeps stay at most SOLVER_SUBSTEP_S long whatever the physics
         // rate: four at 200 and 250 Hz as before, one at 1 kHz, where four would be 0.25 ms
         // substeps for bodies that move 0.1 mm per step.
         params.num_solver_iterations =
