@@ -321,7 +321,6 @@ impl WorldModel {
 
     /// Adds a robot that has not reported yet.
     pub fn add(&self, id: u16) {
-        self.ordered().stale = true;
         self.robots.insert(
             id,
             Arc::new(RobotView {
@@ -335,6 +334,8 @@ impl WorldModel {
                 ..Default::default()
             }),
         );
+        // After the insert, so a snapshot that rebuilds the list in between cannot miss it.
+        self.ordered().stale = true;
     }
 
     /// Takes one state update; says when the robot's localisation changed.
@@ -523,8 +524,10 @@ impl WorldModel {
         } else {
             None
         };
+        // Noted before the map's write guard is taken: a snapshot holds the list's lock while it
+        // reads the map, so the other order could deadlock across threads.
+        self.changed(u.robot_id);
         if let Some(mut entry) = self.robots.get_mut(&u.robot_id) {
-            self.changed(u.robot_id);
             let view = Arc::make_mut(&mut entry);
             view.connected = true;
             view.pose = pose;
@@ -825,8 +828,8 @@ impl WorldModel {
 
     /// Marks a robot's link as down.
     pub fn lost(&self, id: u16) {
+        self.changed(id);
         if let Some(mut v) = self.robots.get_mut(&id) {
-            self.changed(id);
             Arc::make_mut(&mut v).connected = false;
         }
     }

@@ -1136,8 +1136,7 @@ fn drive_robot(
     if pwm == (0, 0) && r.wheels.iter().all(still) && v_body == [0.0; 2] && w_body == 0.0 {
         // At rest with the motors off nothing turns, pushes or draws current: the step would
         // compute zeros. Only the battery's idle drain goes on.
-        r.current_a = spec.battery.idle_a;
-        r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
+        drain_battery(spec, r, pwm, dt);
         return (v_body, w_body);
     }
     for (w, duty) in r.wheels.iter_mut().zip([pwm.0, pwm.1]) {
@@ -1214,6 +1213,13 @@ fn drive_robot(
             });
         });
     }
+    drain_battery(spec, r, pwm, dt);
+    (v, omega)
+}
+
+/// The current the robot draws over the step (idle plus each motor's share of its duty), and
+/// the charge it takes from the battery.
+fn drain_battery(spec: &RobotSpec, r: &mut SimRobot, pwm: (i16, i16), dt: f64) {
     let motor_a: f64 = r
         .wheels
         .iter()
@@ -1222,5 +1228,4 @@ fn drive_robot(
         .sum();
     r.current_a = spec.battery.idle_a + motor_a;
     r.charge_ah = (r.charge_ah - r.current_a * dt / 3600.0).max(0.0);
-    (v, omega)
 }
