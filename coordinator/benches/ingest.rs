@@ -2,8 +2,9 @@
 //! synthetic packet source (no physics): frame bytes → robot actor (checksum, decode, odometry)
 //! → `StateBatch` → world model, the path the supervisor takes.
 //!
-//! The robot actors are spread over one shard arbiter per core (`Shards::per_core`), as the
-//! coordinator does for robots on a real clock; the world model is written on the system arbiter,
+//! The robot actors are spread over shard arbiters beside the system arbiter
+//! (`Shards::beside_system`: one per core but one), as the coordinator does for robots on a real
+//! clock; the world model is written on the system arbiter,
 //! like the supervisor's. The source is a thread of its own that stamps each frame with its send
 //! time, so latency is measured end to end, from the frame entering its link to the model holding
 //! it. Per link count, in one run:
@@ -180,8 +181,16 @@ fn percentile(sorted: &[u64], p: usize) -> Duration {
     )
 }
 
+/// The coordinator's shards; `INGEST_SHARDS=N` sets their number instead (to compare layouts).
+fn shards() -> Shards {
+    std::env::var("INGEST_SHARDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or_else(Shards::beside_system, Shards::new)
+}
+
 async fn measure(links: usize, wall: Duration) -> Row {
-    let shards = Shards::per_core();
+    let shards = shards();
     let feed: Feed = Arc::new(Mutex::new(Vec::new()));
     let epoch = Instant::now();
     let taken = Arc::new(Taken::default());
@@ -319,7 +328,7 @@ fn main() {
     };
     let system = actix::System::new();
     system.block_on(async {
-        let shards = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let shards = shards().len();
         println!(
             "ingest: {shards} shard arbiter(s), offered load {OFFERED_PER_S:.0} frames/s, \
              {:.1} s per phase",

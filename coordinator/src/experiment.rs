@@ -332,8 +332,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     let deadline = HELLO_DEADLINE.min(plan.duration);
     // On a paused clock everything stays on this thread: simulated time advances only when every
     // task waits, which other threads' tasks cannot take part in. Otherwise the robots are
-    // spread over a shard per core (stopped when this returns, after the robots are closed).
-    let shards = (!plan.paused_clock()).then(Shards::per_core);
+    // spread over shards beside this arbiter (stopped when this returns, after the robots are
+    // closed).
+    let shards = (!plan.paused_clock()).then(Shards::beside_system);
     let robots = connect_all(
         &discovered,
         origins.as_deref(),

@@ -1,6 +1,6 @@
-//! Shards: robot actors spread over one arbiter (thread) per core. Decoding, checksums and
+//! Shards: robot actors spread over arbiters (threads) of their own. Decoding, checksums and
 //! odometry are per frame and independent between robots, so a fleet of thousands of links
-//! needs every core, not the one the supervisor's arbiter runs on.
+//! needs more than the one thread the supervisor's arbiter runs on.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -25,9 +25,10 @@ impl Shards {
         }
     }
 
-    /// One arbiter per core the process may use.
-    pub fn per_core() -> Self {
-        Self::new(std::thread::available_parallelism().map_or(1, |n| n.get()))
+    /// One arbiter per core the process may use but one, which is left to the system arbiter
+    /// (the supervisor and the world model); at least one.
+    pub fn beside_system() -> Self {
+        Self::new(std::thread::available_parallelism().map_or(1, |n| n.get()) - 1)
     }
 
     /// How many arbiters there are.
