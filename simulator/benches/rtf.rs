@@ -78,15 +78,20 @@ fn main() {
     // `cargo test --benches` runs this unoptimised: keep that a smoke run.
     let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
     println!("robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz");
-    // `RTF_ROBOTS=1000` measures one team size only (for profiling).
+    // `RTF_ROBOTS=1000` measures one team size only, `RTF_HZ=200` one physics rate,
+    // `RTF_SECS=60` a longer run (profiling).
     let only: Option<usize> = std::env::var("RTF_ROBOTS")
         .ok()
         .and_then(|v| v.parse().ok());
+    let only_secs: Option<f64> = std::env::var("RTF_SECS").ok().and_then(|v| v.parse().ok());
+    let only_hz: Option<u32> = std::env::var("RTF_HZ").ok().and_then(|v| v.parse().ok());
     for robots in [1usize, 10, 100, 1000] {
         if only.is_some_and(|n| n != robots) {
             continue;
         }
-        let secs = if quick {
+        let secs = if let Some(s) = only_secs {
+            s
+        } else if quick {
             0.05
         } else if robots >= 1000 {
             2.0
@@ -95,6 +100,9 @@ fn main() {
         };
         let mut base = None;
         for (hz, every) in [(1000, 1), (500, 2), (200, 5)] {
+            if only_hz.is_some_and(|h| h != hz) {
+                continue;
+            }
             let (rtf, per) = measure(robots, Duration::from_secs_f64(secs), every);
             let ratio = per / *base.get_or_insert(per);
             println!(

@@ -136,16 +136,34 @@ pub struct Scene<'a> {
 }
 
 /// One transmission: which LED of which robot, and how far its power level reaches.
+///
+/// Angles are kept as unit vectors `[cos, sin]`: a beam is traced with products and square roots
+/// only, since a thousand robots send a quarter of a million beams per simulated second.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Beam {
     /// Transmitting robot.
     pub robot: usize,
-    /// LED direction relative to the robot's heading, radians.
-    pub led_angle: f64,
+    /// LED direction relative to the robot's heading, `[cos, sin]`.
+    pub led: [f64; 2],
     /// Reach at this power level, metres.
     pub range: f64,
-    /// Half-angle of the LED's cone, radians.
-    pub cone_half: f64,
+    /// Half-angle of the LED's cone, `[cos, sin]` (at most a right angle).
+    pub cone_half: [f64; 2],
+}
+
+impl Beam {
+    /// A beam from `robot`'s LED at `led_angle` (radians from its heading) with a cone of
+    /// `cone_half` radians each side.
+    pub fn new(robot: usize, led_angle: f64, range: f64, cone_half: f64) -> Self {
+        let (ls, lc) = led_angle.sin_cos();
+        let (cs, cc) = cone_half.sin_cos();
+        Self {
+            robot,
+            led: [lc, ls],
+            range,
+            cone_half: [cc, cs],
+        }
+    }
 }
 
 /// Where a beam's frame arrives.
@@ -157,18 +175,24 @@ pub struct Arrivals {
     pub reflection: Option<Side>,
 }
 
-/// Receivers accept light up to this angle off their axis (wide-angle remote-control receivers).
-const RECEIVER_HALF_ANGLE: f64 = 80.0 * std::f64::consts::PI / 180.0;
+/// Cosine of the widest angle off their axis at which receivers accept light (80°: wide-angle
+/// remote-control receivers).
+const RECEIVER_COS_HALF_ANGLE: f64 = 0.173_648_177_666_930_4;
 /// Receiver aperture radius, widening the cone test for near receivers.
 const RECEIVER_RADIUS: f64 = 0.003;
+
+/// `a` turned by the angle whose `[cos, sin]` is `by`.
+fn turned(a: [f64; 2], by: [f64; 2]) -> [f64; 2] {
+    [a[0] * by[0] - a[1] * by[1], a[0] * by[1] + a[1] * by[0]]
+}
 
 /// Follows one beam through the scene.
 pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
     let me = &scene.robots[beam.robot];
-    let front = beam.led_angle.cos() >= 0.0;
+    let front = beam.led[0] >= 0.0;
     let origin = me.ahead(if front { me.half[0] } else { -me.half[0] });
-    let dir_angle = me.angle + beam.led_angle;
-    let dir = [dir_angle.cos(), dir_angle.sin()];
+    let dir = turned([me.sin_cos.1, me.sin_cos.0], beam.led);
+    let [cone_cos, cone_sin] = beam.cone_half;
     let mut out = Arrivals::default();
 
     scene.grid.near(origin, beam.range + 0.05, |j| {
@@ -185,12 +209,15 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
                 continue;
             }
             let d = d2.sqrt();
-            let off_axis = angle_between(dir, v);
-            if off_axis > beam.cone_half + (RECEIVER_RADIUS / d).atan() {
+            // Inside the cone widened by the aperture's angle atan(r/d): compared as cosines,
+            // cos(half + atan x) = (cos half - x sin half) / sqrt(1 + x²), both angles in [0, π].
+            let x = RECEIVER_RADIUS / d;
+            let widened_cos = (cone_cos - x * cone_sin) / (1.0 + x * x).sqrt();
+            if dir[0] * v[0] + dir[1] * v[1] < widened_cos * d {
                 continue;
             }
             let facing = [sign * other.sin_cos.1, sign * other.sin_cos.0];
-            if angle_between(facing, [-v[0], -v[1]]) > RECEIVER_HALF_ANGLE {
+            if -(facing[0] * v[0] + facing[1] * v[1]) < RECEIVER_COS_HALF_ANGLE * d {
                 continue;
             }
             let unit = [v[0] / d, v[1] / d];
@@ -201,11 +228,14 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
         }
     });
 
-    // Reflection: the nearest surface on the axis or the cone's half-width rays, there and back.
+    // Reflection: the nearest surface on the axis or the rays half-way to the cone's edges,
+    // there and back. The half angle's cosine and sine follow from the cone's.
+    let half = [
+        ((1.0 + cone_cos) * 0.5).sqrt(),
+        ((1.0 - cone_cos) * 0.5).sqrt(),
+    ];
     let mut nearest = f64::INFINITY;
-    for offset in [0.0, -0.5 * beam.cone_half, 0.5 * beam.cone_half] {
-        let a = dir_angle + offset;
-        let d = [a.cos(), a.sin()];
+    for d in [dir, turned(dir, [half[0], -half[1]]), turned(dir, half)] {
         if let Some(h) = first_hit(scene, origin, d, beam.range * 0.5, beam.robot) {
             nearest = nearest.min(h);
         }
@@ -214,12 +244,6 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
         out.reflection = Some(if front { Side::Front } else { Side::Rear });
     }
     out
-}
-
-fn angle_between(a: [f64; 2], b: [f64; 2]) -> f64 {
-    let dot = a[0] * b[0] + a[1] * b[1];
-    let cross = a[0] * b[1] - a[1] * b[0];
-    cross.atan2(dot).abs()
 }
 
 fn blocked(
@@ -310,12 +334,7 @@ mod tests {
     }
 
     fn beam(robot: usize, led_deg: f64, range: f64) -> Beam {
-        Beam {
-            robot,
-            led_angle: led_deg.to_radians(),
-            range,
-            cone_half: 15f64.to_radians(),
-        }
+        Beam::new(robot, led_deg.to_radians(), range, 15f64.to_radians())
     }
 
     #[test]

@@ -1080,16 +1080,20 @@ impl Simulation {
             grid: &self.grid,
         };
         let spec = &self.spec;
+        // Each LED's beam once per step, so tracing a beam takes no trigonometry.
+        let cone_half = spec.ir_cone_half_deg.to_radians();
+        let leds = spec
+            .ir_led_angle_deg
+            .map(|deg| Beam::new(0, deg.to_radians(), 0.0, cone_half));
         let light = |&(i, led, power, _): &(usize, u8, u8, IrFrame)| {
-            let &angle = spec.ir_led_angle_deg.get(usize::from(led))?;
+            let &led = leds.get(usize::from(led))?;
             let level = usize::from(power.clamp(1, 4)) - 1;
             Some(ir::propagate(
                 &scene,
                 &Beam {
                     robot: i,
-                    led_angle: angle.to_radians(),
                     range: spec.ir_range_m[level],
-                    cone_half: spec.ir_cone_half_deg.to_radians(),
+                    ..led
                 },
             ))
         };
