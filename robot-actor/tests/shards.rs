@@ -1,5 +1,6 @@
 //! Robot actors on shard arbiters: every state reaches a batch subscriber, in order per robot, and
-//! a robot's event arrives after the states it published before it and before those after it.
+//! a robot's event arrives after the states it published before it and before those after it;
+//! robots woken together hand their states over in a few batches, not one each.
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -122,4 +123,75 @@ async fn sharded_robots_deliver_every_state_in_order_and_events_between_them() {
     for r in &robots {
         r.close();
     }
+}
+
+/// Counts the batches and the states in them.
+struct Counter {
+    to: mpsc::UnboundedSender<usize>,
+}
+
+impl Actor for Counter {
+    type Context = Context<Self>;
+}
+
+impl Handler<StateBatch> for Counter {
+    type Result = ();
+    fn handle(&mut self, batch: StateBatch, _: &mut Context<Self>) {
+        let _ = self.to.send(batch.0.len());
+    }
+}
+
+#[actix_rt::test]
+async fn robots_woken_together_send_their_states_in_few_batches() {
+    const ROBOTS: u16 = 100;
+    let arbiter = Arbiter::new();
+    let feed: Feed = Arc::new(Mutex::new(Vec::new()));
+    let (to, mut sizes) = mpsc::unbounded_channel();
+    let counter = Counter { to }.start();
+    let mut robots = Vec::new();
+    for id in 1..=ROBOTS {
+        let robot = robot_actor::Robot::start_in(
+            &arbiter.handle(),
+            Arc::new(Scripted {
+                id,
+                feed: Arc::clone(&feed),
+            }),
+            RobotConfig {
+                batch_states: true,
+                ..RobotConfig::default()
+            },
+        );
+        robot.subscribe_batches(counter.clone().recipient());
+        robots.push(robot);
+    }
+    for r in &robots {
+        r.connected().await.expect("hello");
+    }
+    // Hold the arbiter's thread while every robot gets a frame, as a burst from the links' I/O
+    // would find it busy; then every robot is woken before any runs.
+    let (release, held) = std::sync::mpsc::channel::<()>();
+    arbiter.spawn_fn(move || {
+        let _ = held.recv();
+    });
+    for (_, sink) in feed.lock().unwrap().iter() {
+        let _ = sink.send(LinkEvent::Packet(frame(&RobotState::default())));
+    }
+    release.send(()).expect("the arbiter waits");
+    let (mut states, mut batches) = (0, 0);
+    while states < usize::from(ROBOTS) {
+        states += tokio::time::timeout(Duration::from_secs(20), sizes.recv())
+            .await
+            .expect("every state arrives")
+            .expect("the counter lives");
+        batches += 1;
+    }
+    // One batch per pass of the arbiter's scheduler (61 tasks in tokio), not one per robot.
+    assert!(
+        batches <= 4,
+        "{states} states came in {batches} batches, expected a few"
+    );
+    for r in &robots {
+        r.close();
+    }
+    arbiter.stop();
 }

@@ -33,6 +33,11 @@ thread_local! {
 
 /// Queues `u` for `to`; the first state queued since the last flush spawns the flush, which runs
 /// after the tasks already woken on this arbiter (the other robots with frames waiting).
+///
+/// The flush first yields: a task spawned here is queued locally and would run before robots
+/// woken from other threads (the links' I/O), which wait in the arbiter's shared queue, so
+/// batches were of one or two states. A yield defers it to the end of the scheduler's pass (up to
+/// 61 tasks): 10,000 links went from 1.06 to about 46 states per batch at 500,000 frames/s.
 pub(super) fn push(to: &Recipient<StateBatch>, u: StateUpdated) {
     let spawn = PENDING.with_borrow_mut(|p| {
         match p.batches.iter_mut().find(|(r, _)| r == to) {
@@ -42,7 +47,10 @@ pub(super) fn push(to: &Recipient<StateBatch>, u: StateUpdated) {
         !std::mem::replace(&mut p.flush_spawned, true)
     });
     if spawn {
-        actix::spawn(async { flush() });
+        actix::spawn(async {
+            tokio::task::yield_now().await;
+            flush()
+        });
     }
 }
 
