@@ -987,7 +987,8 @@ impl Simulation {
             let theta_wrapped = f64::from(b.rotation().angle());
             let dtheta =
                 world::wrap_angle(theta_wrapped - r.pose.theta.rem_euclid(std::f64::consts::TAU));
-            r.distance_m += (x - r.pose.x).hypot(y - r.pose.y);
+            let (dx, dy) = (x - r.pose.x, y - r.pose.y);
+            r.distance_m += (dx * dx + dy * dy).sqrt();
             r.pose = Pose {
                 x,
                 y,
@@ -1184,10 +1185,13 @@ fn drive_robot(
             )
         };
         let mut j_lat = -ground_lat / k_lat;
-        let total = j_long.hypot(j_lat);
-        if total > grip {
-            j_long *= grip / total;
-            j_lat *= grip / total;
+        // Squares compared first: the tyre holds in nearly every step, and needs no root then
+        // (libm's `hypot` also guards against overflows no impulse here comes near).
+        let total2 = j_long * j_long + j_lat * j_lat;
+        if total2 > grip * grip {
+            let scale = grip / total2.sqrt();
+            j_long *= scale;
+            j_lat *= scale;
         }
         if !jammed {
             wheel.apply_tyre(&spec.motor, radius, j_long);
