@@ -768,6 +768,7 @@ fn build_report(
         restarts: outcome.restarts,
         experiment_time,
         wall_time,
+        peak_memory_bytes: crate::report::peak_memory_bytes(),
     }
 }
 

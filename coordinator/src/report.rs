@@ -152,6 +152,24 @@ pub struct Report {
     pub experiment_time: Duration,
     /// Wall-clock time of the whole run.
     pub wall_time: Duration,
+    /// The process's peak resident memory when the report was made, bytes (where the system
+    /// says; several runs in one process share it).
+    pub peak_memory_bytes: Option<u64>,
+}
+
+/// The peak resident set size of this process so far, bytes: `VmHWM` in `/proc/self/status`, so
+/// `None` off Linux.
+pub fn peak_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line
+        .trim_start_matches("VmHWM:")
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib * 1024)
 }
 
 #[derive(Serialize)]
@@ -208,6 +226,7 @@ struct JsonReport<'a> {
     restarts: u32,
     experiment_time_s: f64,
     wall_time_s: f64,
+    peak_memory_mb: Option<f64>,
 }
 
 impl Report {
@@ -340,6 +359,7 @@ impl Report {
             restarts: self.restarts,
             experiment_time_s: self.experiment_time.as_secs_f64(),
             wall_time_s: self.wall_time.as_secs_f64(),
+            peak_memory_mb: self.peak_memory_bytes.map(|b| b as f64 / 1e6),
         };
         serde_json::to_string_pretty(&j).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
     }
@@ -463,7 +483,11 @@ impl fmt::Display for Report {
             "  experiment time {:.2} s, wall time {:.2} s",
             self.experiment_time.as_secs_f64(),
             self.wall_time.as_secs_f64()
-        )
+        )?;
+        if let Some(b) = self.peak_memory_bytes {
+            write!(f, ", peak memory {:.0} MB", b as f64 / 1e6)?;
+        }
+        Ok(())
     }
 }
 
@@ -492,6 +516,24 @@ mod tests {
             restarts: 0,
             experiment_time: Duration::from_secs(10),
             wall_time: Duration::from_secs(1),
+            peak_memory_bytes: Some(50_000_000),
+        }
+    }
+
+    #[test]
+    fn the_report_ends_with_the_times_and_the_peak_memory() {
+        let r = report((0, 0));
+        assert!(
+            r.to_string()
+                .ends_with("  experiment time 10.00 s, wall time 1.00 s, peak memory 50 MB"),
+            "{r}"
+        );
+        let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(json["peak_memory_mb"], 50.0);
+        // This process holds at least its own code and the report: some megabytes, not bytes.
+        if cfg!(target_os = "linux") {
+            let peak = peak_memory_bytes().expect("Linux reports VmHWM");
+            assert!(peak > 1_000_000 && peak < 100_000_000_000, "{peak}");
         }
     }
 
