@@ -63,6 +63,8 @@ pub struct Reply {
     pub intents: Vec<Intent>,
     /// Set once the behaviour is done.
     pub verdict: Option<Verdict>,
+    /// The behaviour's [`Behaviour::progress`] while it runs.
+    pub progress: Vec<(String, f64)>,
 }
 
 /// The behaviour panicked; the message is its panic payload when it was text.
@@ -183,9 +185,15 @@ impl<B: Behaviour + ?Sized> Runner<B> {
             .verdict()
             .cloned()
             .or_else(|| self.behaviour.verdict());
+        let progress = if self.verdict.is_none() {
+            self.behaviour.progress()
+        } else {
+            Vec::new()
+        };
         Reply {
             intents: self.team.outgoing(intents),
             verdict: self.verdict.clone(),
+            progress,
         }
     }
 }

@@ -358,6 +358,12 @@ pub trait Behaviour: Send + 'static {
     fn verdict(&self) -> Option<Verdict> {
         None
     }
+    /// Figures of the work done so far (tasks, passes, pushes), asked after every hook while the
+    /// behaviour runs: a run stopped before its verdict (the time limit, Ctrl-C, the panel's
+    /// stop) reports them with its failure.
+    fn progress(&self) -> Vec<(String, f64)> {
+        Vec::new()
+    }
 }
 
 /// Options every behaviour is built from.

@@ -677,4 +677,8 @@ impl Behaviour for CooperativePush {
     fn verdict(&self) -> Option<Verdict> {
         self.verdict.clone()
     }
+
+    fn progress(&self) -> Vec<(String, f64)> {
+        vec![("pushes".into(), f64::from(self.pushes))]
+    }
 }

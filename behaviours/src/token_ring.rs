@@ -553,4 +553,8 @@ impl Behaviour for TokenRing {
     fn verdict(&self) -> Option<Verdict> {
         self.verdict.clone()
     }
+
+    fn progress(&self) -> Vec<(String, f64)> {
+        vec![("passes".into(), f64::from(self.passes))]
+    }
 }

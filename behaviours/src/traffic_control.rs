@@ -195,6 +195,8 @@ pub struct TrafficControl {
     plan_time_max: Duration,
     last_progress: Duration,
     started: Duration,
+    /// The time of the latest snapshot seen.
+    now: Duration,
     odometer: Odometer,
     verdict: Option<Verdict>,
 }
@@ -314,6 +316,7 @@ impl TrafficControl {
             plan_time_max: Duration::ZERO,
             last_progress: Duration::ZERO,
             started: Duration::ZERO,
+            now: Duration::ZERO,
             odometer: Odometer::new(),
             verdict: None,
         })
@@ -1027,6 +1030,7 @@ impl TrafficControl {
     /// One round: arrivals, recovery, replanning and dispatch. Lifelong plans are made only at
     /// a `snapshot`, so that all robots reaching their goals since the last one share a plan.
     fn step(&mut self, world: &WorldSnapshot, team: &Team, snapshot: bool) -> Vec<Intent> {
+        self.now = world.time;
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
@@ -1241,6 +1245,19 @@ impl Behaviour for TrafficControl {
 
     fn verdict(&self) -> Option<Verdict> {
         self.verdict.clone()
+    }
+
+    fn progress(&self) -> Vec<(String, f64)> {
+        let minutes = self.now.saturating_sub(self.started).as_secs_f64() / 60.0;
+        vec![
+            ("tasks".into(), f64::from(self.tasks)),
+            (
+                "tasks_per_minute".into(),
+                f64::from(self.tasks) / minutes.max(1e-9),
+            ),
+            ("plans".into(), f64::from(self.replans)),
+            ("recoveries".into(), f64::from(self.recoveries_total)),
+        ]
     }
 }
 

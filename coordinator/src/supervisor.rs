@@ -85,6 +85,8 @@ pub struct Supervisor {
     held: Vec<(Duration, Intent, String)>,
     links: Vec<LinkRecord>,
     restarts: u32,
+    /// The behaviour's latest figures of its work, for a run stopped before its verdict.
+    progress: Vec<(String, f64)>,
     done: Option<oneshot::Sender<Outcome>>,
     started: bool,
     /// Where each robot's queued moves will leave it, and when the last one was sent.
@@ -133,6 +135,7 @@ impl Supervisor {
             snapshot_period,
             safety,
             held: Vec::new(),
+            progress: Vec::new(),
             links: Vec::new(),
             restarts: 0,
             done: Some(done),
@@ -181,6 +184,14 @@ impl Supervisor {
         for (_, r) in &self.robots {
             r.addr().do_send(Command::Stop);
         }
+    }
+
+    /// The failure of a run stopped before the behaviour's verdict, with the behaviour's latest
+    /// figures of its work.
+    fn unfinished(&self, why: String) -> Verdict {
+        let mut verdict = Verdict::failure(why);
+        verdict.metrics = self.progress.clone();
+        verdict
     }
 
     fn finish(&mut self, verdict: Verdict, ctx: &mut Context<Self>) {
@@ -235,6 +246,9 @@ impl Supervisor {
         }
         match reply {
             Ok(Ok(reply)) => {
+                if !reply.progress.is_empty() {
+                    self.progress = reply.progress;
+                }
                 // Most replies to events carry no intent: the snapshot (a pointer per robot) is
                 // taken only for one that does.
                 if !reply.intents.is_empty() {
@@ -661,7 +675,8 @@ impl Handler<Tick> for Supervisor {
 impl Handler<Abort> for Supervisor {
     type Result = ();
     fn handle(&mut self, msg: Abort, ctx: &mut Context<Self>) {
-        self.finish(Verdict::failure(msg.0), ctx);
+        let verdict = self.unfinished(msg.0);
+        self.finish(verdict, ctx);
     }
 }
 
@@ -693,9 +708,7 @@ impl Handler<EStop> for Supervisor {
     fn handle(&mut self, _: EStop, ctx: &mut Context<Self>) {
         // Also when the behaviour is already over: the panel may have moved robots since.
         self.stop_all();
-        self.finish(
-            Verdict::failure("emergency stop from the control panel"),
-            ctx,
-        );
+        let verdict = self.unfinished("emergency stop from the control panel".into());
+        self.finish(verdict, ctx);
     }
 }

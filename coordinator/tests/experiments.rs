@@ -256,3 +256,36 @@ fn ctrl_c_stops_every_robot_reports_and_exits_non_zero() {
         }
     }
 }
+
+/// A run stopped at its time limit still says how much work was done: the behaviour's figures
+/// so far go into the failure.
+#[test]
+fn a_run_stopped_at_its_time_limit_reports_the_work_done_so_far() {
+    let limit = Duration::from_secs(20);
+    let report = run(
+        Plan::sim("traffic_control").duration(limit),
+        &Registry::builtin(),
+    );
+    assert!(!report.success(), "{report}");
+    assert!(
+        report.verdict.summary.contains("did not finish"),
+        "{report}"
+    );
+    let metric = |name: &str| {
+        report
+            .verdict
+            .metrics
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|&(_, v)| v)
+    };
+    let tasks = metric("tasks").expect("the tasks done are reported");
+    assert!(tasks >= 1.0, "robots reached goals in 20 s: {report}");
+    // Over the time the behaviour ran: the limit, less the start-up before its first snapshot.
+    let per_minute = metric("tasks_per_minute").expect("the rate is reported");
+    let at_limit = tasks / (limit.as_secs_f64() / 60.0);
+    assert!(
+        per_minute >= at_limit && per_minute < 1.1 * at_limit,
+        "{per_minute} tasks per minute for {tasks} tasks in {limit:?}"
+    );
+}
