@@ -4,10 +4,9 @@
 //!
 //! The robot actors are spread over shard arbiters beside the system arbiter
 //! (`Shards::beside_system`: one per core but one), as the coordinator does for robots on a real
-//! clock; the world model is written on the system arbiter,
-//! like the supervisor's. The source is a thread of its own that stamps each frame with its send
-//! time, so latency is measured end to end, from the frame entering its link to the model holding
-//! it. Per link count, in one run:
+//! clock; the world model is written on the system arbiter, like the supervisor's. The source is
+//! a thread of its own that stamps each frame with its send time, so latency is measured end to
+//! end, from the frame entering its link to the model holding it. Per link count, in one run:
 //!
 //! - saturation: the source keeps a window of frames in flight, as many as the pipeline takes;
 //! - the offered load of 10,000 links × 50 Hz: 500,000 frames/s, paced (due frames sent every

@@ -14,9 +14,7 @@ pub struct Obb {
     pub center: [f64; 2],
     /// Half length along the heading and half width, metres.
     pub half: [f64; 2],
-    /// Heading, radians.
-    pub angle: f64,
-    /// Sine and cosine of the heading, computed once.
+    /// Sine and cosine of the heading, computed once (a beam is traced without the angle).
     sin_cos: (f64, f64),
 }
 
@@ -26,7 +24,6 @@ impl Obb {
         Self {
             center,
             half,
-            angle,
             sin_cos: angle.sin_cos(),
         }
     }
@@ -207,12 +204,8 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
             near.push(j as u32);
         }
     });
-    let near = Near {
-        robots: scene.robots,
-        indices: &near,
-    };
 
-    for &j in near.indices {
+    for &j in &near {
         let j = j as usize;
         let other = &scene.robots[j];
         for (side, sign) in [(Side::Front, 1.0), (Side::Rear, -1.0)] {
@@ -261,24 +254,11 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
     out
 }
 
-/// Robots near one beam's LED (never its sender).
-struct Near<'a> {
-    robots: &'a [Obb],
-    indices: &'a [u32],
-}
-
-impl Near<'_> {
-    fn each(&self) -> impl Iterator<Item = (usize, &Obb)> + '_ {
-        self.indices
-            .iter()
-            .map(|&k| (k as usize, &self.robots[k as usize]))
-    }
-}
-
-/// Whether a box or a robot other than the receiver `to` stands on the ray within `dist`.
+/// Whether a box or a robot of `near` other than the receiver `to` stands on the ray within
+/// `dist`.
 fn blocked(
     scene: &Scene<'_>,
-    near: &Near<'_>,
+    near: &[u32],
     origin: [f64; 2],
     dir: [f64; 2],
     dist: f64,
@@ -289,14 +269,14 @@ fn blocked(
         .iter()
         .any(|o| o.ray(origin, dir, dist).is_some())
         || near
-            .each()
-            .any(|(k, r)| k != to && r.ray(origin, dir, dist).is_some())
+            .iter()
+            .any(|&k| k as usize != to && scene.robots[k as usize].ray(origin, dir, dist).is_some())
 }
 
-/// Distance to the first wall, box or robot along the ray, if within `max`.
+/// Distance to the first wall, box or robot of `near` along the ray, if within `max`.
 fn first_hit(
     scene: &Scene<'_>,
-    near: &Near<'_>,
+    near: &[u32],
     origin: [f64; 2],
     dir: [f64; 2],
     max: f64,
@@ -312,8 +292,8 @@ fn first_hit(
     for o in scene.obstacles {
         take(o.ray(origin, dir, max));
     }
-    for (_, r) in near.each() {
-        take(r.ray(origin, dir, max));
+    for &k in near {
+        take(scene.robots[k as usize].ray(origin, dir, max));
     }
     best
 }

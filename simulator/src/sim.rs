@@ -1081,11 +1081,14 @@ impl Simulation {
             grid: &self.grid,
         };
         let spec = &self.spec;
-        // Each LED's beam once per step, so tracing a beam takes no trigonometry.
-        let cone_half = spec.ir_cone_half_deg.to_radians();
-        let leds = spec
-            .ir_led_angle_deg
-            .map(|deg| Beam::new(0, deg.to_radians(), 0.0, cone_half));
+        // The LEDs' directions and the cone as unit vectors once per step, so tracing a beam
+        // takes no trigonometry.
+        let unit = |deg: f64| {
+            let (s, c) = deg.to_radians().sin_cos();
+            [c, s]
+        };
+        let cone_half = unit(spec.ir_cone_half_deg);
+        let leds = spec.ir_led_angle_deg.map(unit);
         let light = |&(i, led, power, _): &(usize, u8, u8, IrFrame)| {
             let &led = leds.get(usize::from(led))?;
             let level = usize::from(power.clamp(1, 4)) - 1;
@@ -1093,8 +1096,9 @@ impl Simulation {
                 &scene,
                 &Beam {
                     robot: i,
+                    led,
                     range: spec.ir_range_m[level],
-                    ..led
+                    cone_half,
                 },
             ))
         };
