@@ -530,11 +530,12 @@ async fn start_simulation(
     plan: &Plan,
     world: &World,
 ) -> Result<(runtime::SimHandle, Vec<Discovered>)> {
-    if plan.physics_every > 2 {
+    if plan.physics_every > 4 && !world.obstacles.is_empty() {
         tracing::warn!(
             physics_hz = plan.physics_hz(),
-            "physics below 500 Hz: line following keeps its accuracy, but moves and turns drift \
-             (a 1,000-robot traffic run collided at 200 Hz where 1 kHz did not)"
+            "physics at 200 Hz: moves, turns and line following keep their accuracy, but contacts \
+             are resolved every 5 ms and two robots push the heavy box about 10 % less far than at \
+             1 kHz"
         );
     }
     let mut sim = Simulation::new(

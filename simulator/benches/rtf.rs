@@ -1,10 +1,10 @@
 //! Real-time factor of the simulator with the firmware in the loop: 1, 10, 100 and 1,000 robots
 //! line following on `grid` worlds, every robot connected and reflecting its state.
 //!
-//! Runs each size with physics at 1 kHz (every clock step), 500 Hz and 200 Hz (`physics_every` 5;
-//! firmware, links and encoder edges still on the 1 kHz clock). Prints simulated seconds per wall
-//! second, the cost per robot per millisecond of simulated time, and that cost relative to the
-//! same size at 1 kHz measured in the same process.
+//! Runs each size with physics at 1 kHz (every clock step), 500 Hz and 200 Hz (`physics_every` 5:
+//! contacts every 5 ms; motors, tyres, encoders, firmware and links still on the 1 kHz clock).
+//! Prints simulated seconds per wall second, the cost per robot per millisecond of simulated
+//! time, and that cost relative to the same size at 1 kHz measured in the same process.
 
 /// The coordinator binary's allocator, so the bench measures what it runs.
 #[global_allocator]

@@ -20,21 +20,22 @@ pub struct WheelState {
 
 impl WheelState {
     /// Integrates the motor for `dt` at `duty` (−1..1) from a battery at `volts`, before the tyre
-    /// acts. Returns nothing: the tyre impulse is applied afterwards with [`WheelState::apply_tyre`].
+    /// acts; the tyre's impulse then slows it by radius / inertia per unit.
     pub fn drive(&mut self, m: &MotorSpec, duty: f64, volts: f64, dt: f64) {
-        let v = volts * duty.clamp(-1.0, 1.0);
-        // τ = k_t·(v − k_t·ω)/R − b·ω − τ_c·sign(ω): implicit in ω for the linear part.
-        let damping = m.k_t * m.k_t / m.resistance_ohm + m.viscous;
-        let drive = m.k_t * v / m.resistance_ohm;
-        let free = (self.omega + dt / m.inertia * drive) / (1.0 + dt / m.inertia * damping);
-        let coulomb_dv = m.coulomb_nm * dt / m.inertia;
-        self.omega = if free.abs() <= coulomb_dv {
+        self.drive_with(m, &MotorStep::new(m, duty, volts, dt));
+    }
+
+    /// [`drive`](Self::drive) with the step's constants worked out once, for a physics step that
+    /// drives the wheel over several clock steps at one duty.
+    pub fn drive_with(&mut self, m: &MotorSpec, p: &MotorStep) {
+        let free = (self.omega + p.drive_dv) * p.damping_inv;
+        self.omega = if free.abs() <= p.coulomb_dv {
             // Dry friction holds the wheel (or stops it within this step).
             0.0
         } else {
-            free - coulomb_dv * free.signum()
+            free - p.coulomb_dv * free.signum()
         };
-        self.current_a = (v - m.k_t * self.omega) / m.resistance_ohm;
+        self.current_a = (p.volts - m.k_t * self.omega) / m.resistance_ohm;
     }
 
     /// The wheel is blocked: it does not turn, and the motor draws the stall current of `duty`
@@ -47,11 +48,6 @@ impl WheelState {
     /// Rim speed, m/s.
     pub fn rim_speed(&self, radius: f64) -> f64 {
         self.omega * radius
-    }
-
-    /// The tyre pushed the floor with impulse `j` (N·s, along the heading): the wheel slows by it.
-    pub fn apply_tyre(&mut self, m: &MotorSpec, radius: f64, j: f64) {
-        self.omega -= j * radius / m.inertia;
     }
 
     /// Advances the angle by the step's rotation and reports each encoder edge crossed as the
@@ -88,23 +84,39 @@ impl WheelState {
     }
 }
 
+/// What one clock step of a motor at one duty and battery voltage adds, worked out once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotorStep {
+    /// Voltage across the motor, volts (signed).
+    volts: f64,
+    /// Speed the drive torque adds over the step before damping, rad/s.
+    drive_dv: f64,
+    /// The implicit step's factor, 1 / (1 + dt·damping / inertia).
+    damping_inv: f64,
+    /// Speed dry friction takes over the step, rad/s.
+    coulomb_dv: f64,
+}
+
+impl MotorStep {
+    /// The constants of a step of `dt` at `duty` (−1..1) from a battery at `volts`.
+    pub fn new(m: &MotorSpec, duty: f64, volts: f64, dt: f64) -> Self {
+        let v = volts * duty.clamp(-1.0, 1.0);
+        // τ = k_t·(v − k_t·ω)/R − b·ω − τ_c·sign(ω): implicit in ω for the linear part.
+        let damping = m.k_t * m.k_t / m.resistance_ohm + m.viscous;
+        let drive = m.k_t * v / m.resistance_ohm;
+        Self {
+            volts: v,
+            drive_dv: dt / m.inertia * drive,
+            damping_inv: 1.0 / (1.0 + dt / m.inertia * damping),
+            coulomb_dv: m.coulomb_nm * dt / m.inertia,
+        }
+    }
+}
+
 /// Inverse effective mass of a rigid body at a point offset `r` from its centre, along unit `n`.
 pub fn inverse_mass_along(mass: f64, inertia: f64, r: [f64; 2], n: [f64; 2]) -> f64 {
     let cross = r[0] * n[1] - r[1] * n[0];
     1.0 / mass + cross * cross / inertia
-}
-
-/// Impulse along the heading that makes the contact point move with the rim, shared between the
-/// body (inverse effective mass `k_body`) and the wheel, before the friction limit.
-pub fn grip_impulse(
-    rim_speed: f64,
-    ground_speed: f64,
-    k_body: f64,
-    m: &MotorSpec,
-    radius: f64,
-) -> f64 {
-    let k_wheel = radius * radius / m.inertia;
-    (rim_speed - ground_speed) / (k_body + k_wheel)
 }
 
 #[cfg(test)]
