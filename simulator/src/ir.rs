@@ -16,6 +16,8 @@ pub struct Obb {
     pub half: [f64; 2],
     /// Sine and cosine of the heading, computed once (a beam is traced without the angle).
     sin_cos: (f64, f64),
+    /// Radius of the circle through the corners, a little widened against rounding.
+    reach: f64,
 }
 
 impl Obb {
@@ -25,14 +27,25 @@ impl Obb {
             center,
             half,
             sin_cos: angle.sin_cos(),
+            reach: (half[0] * half[0] + half[1] * half[1]).sqrt() * (1.0 + 1e-9),
         }
     }
 
     /// Distance along the unit ray `dir` from `origin` to where it enters this box, if it does
     /// within `max`; a ray starting inside reports 0.
     pub fn ray(&self, origin: [f64; 2], dir: [f64; 2], max: f64) -> Option<f64> {
-        let (s, c) = self.sin_cos;
         let rel = [origin[0] - self.center[0], origin[1] - self.center[1]];
+        // Most rays pass well clear of a box: rejected against the circle through its corners,
+        // without the slab test's divisions. Along the ray the centre lies at `-along`.
+        let along = -(rel[0] * dir[0] + rel[1] * dir[1]);
+        if along < -self.reach || along > max + self.reach {
+            return None;
+        }
+        let across2 = rel[0] * rel[0] + rel[1] * rel[1] - along * along;
+        if across2 > self.reach * self.reach {
+            return None;
+        }
+        let (s, c) = self.sin_cos;
         // Into the box frame.
         let o = [rel[0] * c + rel[1] * s, -rel[0] * s + rel[1] * c];
         let d = [dir[0] * c + dir[1] * s, -dir[0] * s + dir[1] * c];
@@ -175,8 +188,12 @@ pub struct Arrivals {
 /// Cosine of the widest angle off their axis at which receivers accept light (80°: wide-angle
 /// remote-control receivers).
 const RECEIVER_COS_HALF_ANGLE: f64 = 0.173_648_177_666_930_4;
+/// Its square.
+const RECEIVER_COS_HALF_ANGLE_2: f64 = RECEIVER_COS_HALF_ANGLE * RECEIVER_COS_HALF_ANGLE;
 /// Receiver aperture radius, widening the cone test for near receivers.
 const RECEIVER_RADIUS: f64 = 0.003;
+/// Its square.
+const RECEIVER_RADIUS_2: f64 = RECEIVER_RADIUS * RECEIVER_RADIUS;
 
 /// `a` turned by the angle whose `[cos, sin]` is `by`.
 fn turned(a: [f64; 2], by: [f64; 2]) -> [f64; 2] {
@@ -216,16 +233,24 @@ pub fn propagate(scene: &Scene<'_>, beam: &Beam) -> Arrivals {
             if d2 > beam.range * beam.range || d2 < 1e-18 {
                 continue;
             }
+            // Tests without roots or divisions first, as squares of non-negative sides: the
+            // receiver must face the LED, and a receiver behind the LED is outside its cone
+            // unless the aperture widens the cone past a right angle (within a millimetre).
+            let facing = [sign * other.sin_cos.1, sign * other.sin_cos.0];
+            let towards = -(facing[0] * v[0] + facing[1] * v[1]);
+            if towards < 0.0 || towards * towards < RECEIVER_COS_HALF_ANGLE_2 * d2 {
+                continue;
+            }
+            let ahead = dir[0] * v[0] + dir[1] * v[1];
+            if ahead <= 0.0 && cone_cos * cone_cos * d2 > RECEIVER_RADIUS_2 * cone_sin * cone_sin {
+                continue;
+            }
             let d = d2.sqrt();
             // Inside the cone widened by the aperture's angle atan(r/d): compared as cosines,
             // cos(half + atan x) = (cos half - x sin half) / sqrt(1 + x²), both angles in [0, π].
             let x = RECEIVER_RADIUS / d;
             let widened_cos = (cone_cos - x * cone_sin) / (1.0 + x * x).sqrt();
-            if dir[0] * v[0] + dir[1] * v[1] < widened_cos * d {
-                continue;
-            }
-            let facing = [sign * other.sin_cos.1, sign * other.sin_cos.0];
-            if -(facing[0] * v[0] + facing[1] * v[1]) < RECEIVER_COS_HALF_ANGLE * d {
+            if ahead < widened_cos * d {
                 continue;
             }
             let unit = [v[0] / d, v[1] / d];

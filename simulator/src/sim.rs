@@ -34,8 +34,6 @@ const WALL_THICKNESS: f32 = 0.02;
 /// Robot count from which per-robot work runs on every core; each robot touches only its own
 /// state in those phases, so the result does not depend on the thread count.
 const PARALLEL_FROM: usize = 256;
-/// IR beams in one step from which they are traced on every core.
-const PARALLEL_BEAMS_FROM: usize = 64;
 
 /// Options of a simulation run.
 #[derive(Clone, Debug)]
@@ -147,6 +145,9 @@ pub struct SimRobot {
     /// Line sensor centre and heading's (sin, cos) at the start and the end of the physics step
     /// under way, for the floor to be looked at in between.
     sensor_path: [([f64; 2], (f64, f64)); 2],
+    /// Frames the robot's IR LEDs sent this step and where each arrived, traced while it was
+    /// served and delivered once every robot has been.
+    lit: Vec<(IrFrame, Option<ir::Arrivals>)>,
 }
 
 /// The longest substep of rapier's contact solver, seconds.
@@ -318,8 +319,6 @@ pub struct Simulation {
     obstacle_boxes: Vec<Obb>,
     active_contacts: Vec<ContactKind>,
     contacts: Vec<Contact>,
-    /// Beams sent this step: (robot, LED, power, frame), kept to reuse the allocation.
-    ir_sent: Vec<(usize, u8, u8, IrFrame)>,
     /// Per robot, what its last serving left to pass on: [`OUTGOING`] and [`BEAMS`] bits.
     served: Vec<u8>,
     /// Per robot, the earliest time a packet could be due at the host (`u64::MAX`: none queued);
@@ -467,6 +466,7 @@ impl Simulation {
                     [start.position.x, start.position.y],
                     start.heading_rad.sin_cos(),
                 ); 2],
+                lit: Vec::new(),
             });
         }
         owners.sort_by_key(|&(c, _)| c.into_raw_parts());
@@ -518,7 +518,6 @@ impl Simulation {
             grid: Grid::default(),
             active_contacts: Vec::new(),
             contacts: Vec::new(),
-            ir_sent: Vec::new(),
             served: vec![0; n_robots],
             host_due_ns: vec![u64::MAX; n_robots],
         };
@@ -692,6 +691,7 @@ impl Simulation {
         let mut board = std::mem::replace(&mut r.firmware, placeholder).into_board();
         board.edges.clear();
         board.ir_out.clear();
+        r.lit.clear();
         board.pwm = (0, 0);
         r.firmware = Firmware::new(board);
         r.wheels = [WheelState::default(); 2];
@@ -849,7 +849,35 @@ impl Simulation {
             now
         };
         let interpolate = self.physics_every > 1;
-        let tick = |r: &mut SimRobot| -> u8 {
+        let scene = Scene {
+            robots: &self.robot_boxes,
+            obstacles: &self.obstacle_boxes,
+            arena: [self.world.arena.width_m, self.world.arena.height_m],
+            grid: &self.grid,
+        };
+        let spec = &self.spec;
+        // The LEDs' directions and the cone as unit vectors once per step, so tracing a beam
+        // takes no trigonometry.
+        let unit = |deg: f64| {
+            let (s, c) = deg.to_radians().sin_cos();
+            [c, s]
+        };
+        let cone_half = unit(spec.ir_cone_half_deg);
+        let leds = spec.ir_led_angle_deg.map(unit);
+        let trace = |i: usize, led: u8, power: u8| {
+            let &led = leds.get(usize::from(led))?;
+            let level = usize::from(power.clamp(1, 4)) - 1;
+            Some(ir::propagate(
+                &scene,
+                &Beam {
+                    robot: i,
+                    led,
+                    range: spec.ir_range_m[level],
+                    cone_half,
+                },
+            ))
+        };
+        let tick = |(i, r): (usize, &mut SimRobot)| -> u8 {
             let mut heard = false;
             while let Some(p) = r.link.recv_at_robot(now_ns) {
                 if p.get(1) == Some(&(protocol::PacketType::SettingsUpdate as u8)) {
@@ -875,22 +903,34 @@ impl Simulation {
                 }
                 r.firmware.tick(now);
             }
+            // Beams only read the scene, which moves only on physics steps: traced here, on
+            // whichever core serves the sender, and delivered below in the robots' order.
+            let board = r.firmware.board_mut();
+            if !board.ir_out.is_empty() {
+                let lit = &mut r.lit;
+                lit.extend(
+                    board
+                        .ir_out
+                        .drain(..)
+                        .map(|(led, power, frame)| (frame, trace(i, led, power))),
+                );
+            }
             // Read while the robot's state is in this core's cache, so the serial passes below
             // visit only robots with something to pass on.
-            (u8::from(r.firmware.has_outgoing()) * OUTGOING)
-                | (u8::from(!r.firmware.board().ir_out.is_empty()) * BEAMS)
+            (u8::from(r.firmware.has_outgoing()) * OUTGOING) | (u8::from(!r.lit.is_empty()) * BEAMS)
         };
         let mut served = std::mem::take(&mut self.served);
         if self.robots.len() >= PARALLEL_FROM {
             self.robots
                 .par_iter_mut()
+                .enumerate()
                 .map(tick)
                 .collect_into_vec(&mut served);
         } else {
             served.clear();
-            served.extend(self.robots.iter_mut().map(tick));
+            served.extend(self.robots.iter_mut().enumerate().map(tick));
         }
-        self.propagate_ir(now, &mut served);
+        self.deliver_ir(now, &mut served);
         for (i, &bits) in served.iter().enumerate() {
             if bits & OUTGOING != 0 {
                 self.flush_outgoing(i);
@@ -1075,74 +1115,28 @@ impl Simulation {
         );
     }
 
-    /// Traces the beams of the robots `served` marks and delivers what each robot saw, marking the
-    /// receivers as having packets to send (a sighting may report at once).
-    fn propagate_ir(&mut self, now: Instant, served: &mut [u8]) {
-        let mut sent = std::mem::take(&mut self.ir_sent);
-        sent.clear();
-        for (i, r) in self.robots.iter_mut().enumerate() {
+    /// Delivers the frames of the beams the robots `served` marks sent, in the robots' order and
+    /// each robot's LEDs' order, so the thread count cannot change the run; marks the receivers
+    /// as having packets to send (a sighting may report at once).
+    fn deliver_ir(&mut self, now: Instant, served: &mut [u8]) {
+        for i in 0..self.robots.len() {
             if served[i] & BEAMS == 0 {
                 continue;
             }
-            sent.extend(
-                r.firmware
-                    .board_mut()
-                    .ir_out
-                    .drain(..)
-                    .map(|(led, power, frame)| (i, led, power, frame)),
-            );
-        }
-        if sent.is_empty() {
-            self.ir_sent = sent;
-            return;
-        }
-        let scene = Scene {
-            robots: &self.robot_boxes,
-            obstacles: &self.obstacle_boxes,
-            arena: [self.world.arena.width_m, self.world.arena.height_m],
-            grid: &self.grid,
-        };
-        let spec = &self.spec;
-        // The LEDs' directions and the cone as unit vectors once per step, so tracing a beam
-        // takes no trigonometry.
-        let unit = |deg: f64| {
-            let (s, c) = deg.to_radians().sin_cos();
-            [c, s]
-        };
-        let cone_half = unit(spec.ir_cone_half_deg);
-        let leds = spec.ir_led_angle_deg.map(unit);
-        let light = |&(i, led, power, _): &(usize, u8, u8, IrFrame)| {
-            let &led = leds.get(usize::from(led))?;
-            let level = usize::from(power.clamp(1, 4)) - 1;
-            Some(ir::propagate(
-                &scene,
-                &Beam {
-                    robot: i,
-                    led,
-                    range: spec.ir_range_m[level],
-                    cone_half,
-                },
-            ))
-        };
-        // Each beam only reads the scene; arrivals are delivered afterwards in the order the
-        // beams were sent, so the thread count cannot change the run.
-        let arrivals: Vec<Option<ir::Arrivals>> = if sent.len() >= PARALLEL_BEAMS_FROM {
-            sent.par_iter().map(light).collect()
-        } else {
-            sent.iter().map(light).collect()
-        };
-        for (&(i, _, _, frame), arrived) in sent.iter().zip(arrivals) {
-            let Some(arrived) = arrived else { continue };
-            for (j, side) in arrived.robots {
-                self.robots[j].firmware.on_ir_frame(now, side, frame);
-                served[j] |= OUTGOING;
+            let mut lit = std::mem::take(&mut self.robots[i].lit);
+            for (frame, arrived) in lit.drain(..) {
+                let Some(arrived) = arrived else { continue };
+                for (j, side) in arrived.robots {
+                    self.robots[j].firmware.on_ir_frame(now, side, frame);
+                    served[j] |= OUTGOING;
+                }
+                if let Some(side) = arrived.reflection {
+                    self.robots[i].firmware.on_ir_frame(now, side, frame);
+                    served[i] |= OUTGOING;
+                }
             }
-            if let Some(side) = arrived.reflection {
-                self.robots[i].firmware.on_ir_frame(now, side, frame);
-                served[i] |= OUTGOING;
-            }
+            self.robots[i].lit = lit;
         }
-        self.ir_sent = sent;
     }
 }
 
