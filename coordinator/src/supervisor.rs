@@ -89,8 +89,13 @@ pub struct Supervisor {
     progress: Vec<(String, f64)>,
     done: Option<oneshot::Sender<Outcome>>,
     started: bool,
-    /// Where each robot's queued moves will leave it, and when the last one was sent.
-    planned: std::collections::HashMap<u16, (Pose, Instant)>,
+    /// Where each robot's queued moves will take it, and when the last one was sent.
+    planned: std::collections::HashMap<u16, Plan>,
+    /// The behaviour's (or the re-localiser's) tag of each move in flight, by robot and the
+    /// number the supervisor sent it under.
+    move_tags: std::collections::HashMap<(u16, u32), u32>,
+    /// The number the next move is sent under.
+    next_move: u32,
     /// Lost robots being re-localised; every intent for them is held meanwhile.
     relocalising: std::collections::HashMap<u16, Relocaliser>,
     /// Robots whose link came back but whose first state report has not: the behaviour hears
@@ -108,6 +113,44 @@ const LOST_REACH_M: f64 = 0.06;
 /// A robot whose queue the robot reports empty this long after the last move was sent has done
 /// them all (the report of the newest move has certainly arrived by then).
 const PLAN_SETTLE: Duration = Duration::from_millis(300);
+
+/// The moves sent to one robot that have not finished, as the poses each will end at.
+///
+/// Moves are relative, so each is chained from the end of the one before. A robot that is kept
+/// flowing (the next segment queued before the last ends) never empties its queue, and the chain
+/// would add up every segment's correction of the tape's lateral offset into a path the robot
+/// never drives (160 mm off after 20 segments down a lattice's column, held at the arena's
+/// border). So the chain is anchored again at each finished move: the rest is moved rigidly by
+/// the difference between where the finished move was to end and where the world model has the
+/// robot. Moves are known by the number the supervisor gave them, which travels in their tag.
+#[derive(Clone, Debug)]
+struct Plan {
+    /// Number and end pose of each unfinished move, oldest first; never empty.
+    ends: std::collections::VecDeque<(u32, Pose)>,
+    /// When the last one was sent.
+    sent: Instant,
+}
+
+impl Plan {
+    /// Where the last queued move will leave the robot.
+    fn end(&self) -> Pose {
+        self.ends.back().map(|&(_, p)| p).unwrap_or_default()
+    }
+
+    /// Move `number` finished with the robot at `at` (and every one before it, which the robot
+    /// drove first): the rest follows from there. `false` when no move is left.
+    fn finished(&mut self, number: u32, at: Pose) -> bool {
+        let Some(k) = self.ends.iter().position(|&(n, _)| n == number) else {
+            return !self.ends.is_empty();
+        };
+        let (_, done) = self.ends[k];
+        self.ends.drain(..=k);
+        for (_, e) in &mut self.ends {
+            *e = at.compose(e.relative_to(done));
+        }
+        !self.ends.is_empty()
+    }
+}
 
 impl Supervisor {
     /// A supervisor over connected robots, running the behaviour built by `constructor`.
@@ -141,6 +184,8 @@ impl Supervisor {
             done: Some(done),
             started: false,
             planned: Default::default(),
+            move_tags: Default::default(),
+            next_move: 0,
             relocalising: Default::default(),
             reconnected: Default::default(),
         }
@@ -339,7 +384,7 @@ impl Supervisor {
                 let moving = o.pending_moves > 0
                     || o.state.wheels.left_mps.abs() > 0.005
                     || o.state.wheels.right_mps.abs() > 0.005;
-                let planned = self.planned.get(&o.id).map_or(o.pose, |(p, _)| *p);
+                let planned = self.planned.get(&o.id).map_or(o.pose, Plan::end);
                 let within = |p: Pose| (p.x - view.pose.x).hypot(p.y - view.pose.y) < reach;
                 moving && (within(o.pose) || within(planned))
             })
@@ -473,12 +518,12 @@ impl Supervisor {
     /// Passes one intent through the safety check and sends it.
     fn carry_out_checked(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
         let id = intent.robot();
-        let from = self.planned.get(&id).map(|(p, _)| *p);
+        let from = self.planned.get(&id).map(Plan::end);
         let others: Vec<(u16, Pose)> = self
             .planned
             .iter()
             .filter(|(other, _)| **other != id)
-            .map(|(other, (p, _))| (*other, *p))
+            .map(|(other, plan)| (*other, plan.end()))
             .collect();
         if let Err(reason) = self.safety.check_planned(&intent, world, from, &others) {
             warn!(?intent, reason, "intent held back");
@@ -490,8 +535,14 @@ impl Supervisor {
                 let start = from
                     .or_else(|| world.robot(id).map(|r| r.pose))
                     .unwrap_or_default();
-                self.planned
-                    .insert(id, (safety::end_pose(start, command), Instant::now()));
+                let end = safety::end_pose(start, command);
+                let now = Instant::now();
+                let plan = self.planned.entry(id).or_insert_with(|| Plan {
+                    ends: Default::default(),
+                    sent: now,
+                });
+                plan.ends.push_back((self.next_move, end));
+                plan.sent = now;
             }
             Intent::Led { .. } | Intent::IrMessage { .. } => {}
             _ => {
@@ -501,9 +552,14 @@ impl Supervisor {
         let Some(robot) = self.robot(intent.robot()) else {
             return true;
         };
-        let addr = robot.addr();
+        let addr = robot.addr().clone();
         match intent {
-            Intent::Move { command, tag, .. } => addr.do_send(Enqueue::tagged(command, tag)),
+            Intent::Move { command, tag, .. } => {
+                let number = self.next_move;
+                self.next_move = self.next_move.wrapping_add(1);
+                self.move_tags.insert((id, number), tag);
+                addr.do_send(Enqueue::tagged(command, number));
+            }
             Intent::FollowLine { speed, .. } => addr.do_send(Command::FollowLine(speed)),
             Intent::WheelSpeeds { left, right, .. } => {
                 addr.do_send(Command::WheelSpeeds(left, right))
@@ -569,7 +625,18 @@ impl Supervisor {
 
 impl Handler<RobotEvent> for Supervisor {
     type Result = ();
-    fn handle(&mut self, e: RobotEvent, ctx: &mut Context<Self>) {
+    fn handle(&mut self, mut e: RobotEvent, ctx: &mut Context<Self>) {
+        if let RobotEventKind::MoveFinished { tag, .. } = &mut e.kind {
+            let number = *tag;
+            let at = self.model.robots().get(&e.robot_id).map(|v| v.pose);
+            if let (Some(plan), Some(at)) = (self.planned.get_mut(&e.robot_id), at) {
+                if !plan.finished(number, at) {
+                    self.planned.remove(&e.robot_id);
+                }
+            }
+            // The behaviour hears of its move under its own tag.
+            *tag = self.move_tags.remove(&(e.robot_id, number)).unwrap_or(0);
+        }
         match &e.kind {
             RobotEventKind::Encounter(enc) => {
                 let encounter = Encounter {
@@ -584,6 +651,8 @@ impl Handler<RobotEvent> for Supervisor {
                 self.encounters_new.push(encounter);
             }
             RobotEventKind::LinkLost => {
+                // Its moves in flight fail without finishing.
+                self.move_tags.retain(|&(robot, _), _| robot != e.robot_id);
                 // A link lost again before its first report: the behaviour hears of the loss
                 // only, not of a connection it never could use.
                 self.reconnected.remove(&e.robot_id);
@@ -657,8 +726,9 @@ impl Handler<Tick> for Supervisor {
         }
         let now = Instant::now();
         let model = &self.model;
-        self.planned.retain(|id, (_, sent)| {
-            now - *sent < PLAN_SETTLE || model.robots().get(id).is_some_and(|v| v.pending_moves > 0)
+        self.planned.retain(|id, plan| {
+            now - plan.sent < PLAN_SETTLE
+                || model.robots().get(id).is_some_and(|v| v.pending_moves > 0)
         });
         if let Some(b) = self.behaviour.clone() {
             let world = self.snapshot();
@@ -710,5 +780,48 @@ impl Handler<EStop> for Supervisor {
         self.stop_all();
         let verdict = self.unfinished("emergency stop from the control panel".into());
         self.finish(verdict, ctx);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(x: f64, y: f64, theta: f64) -> Pose {
+        Pose { x, y, theta }
+    }
+
+    fn close(a: Pose, b: Pose) -> bool {
+        (a.x - b.x).abs() < 1e-9 && (a.y - b.y).abs() < 1e-9 && (a.theta - b.theta).abs() < 1e-9
+    }
+
+    #[test]
+    fn a_finished_move_anchors_the_rest_of_the_chain_where_the_robot_is() {
+        // Three 0.1 m moves east from the origin; the first ends 5 mm north of its plan and
+        // turned by 0.1 rad: the two after it follow from there, not from the plan.
+        let mut plan = Plan {
+            ends: [
+                (7, pose(0.1, 0.0, 0.0)),
+                (8, pose(0.2, 0.0, 0.0)),
+                (9, pose(0.3, 0.0, 0.0)),
+            ]
+            .into(),
+            sent: Instant::now(),
+        };
+        let at = pose(0.1, 0.005, 0.1);
+        assert!(plan.finished(7, at));
+        let (s, c) = 0.1f64.sin_cos();
+        assert!(
+            close(plan.end(), pose(0.1 + 0.2 * c, 0.005 + 0.2 * s, 0.1)),
+            "{:?}",
+            plan.end()
+        );
+        // A number the chain does not hold (a move of an earlier plan) changes nothing.
+        let before = plan.end();
+        assert!(plan.finished(3, pose(5.0, 5.0, 0.0)));
+        assert!(close(plan.end(), before));
+        // The last move finishing (its finish overtook the one before) empties the chain.
+        assert!(!plan.finished(9, pose(0.3, 0.0, 0.0)));
+        assert!(plan.ends.is_empty());
     }
 }
