@@ -321,6 +321,10 @@ pub struct Simulation {
     contacts: Vec<Contact>,
     /// Per robot, what its last serving left to pass on: [`OUTGOING`] and [`BEAMS`] bits.
     served: Vec<u8>,
+    /// The IR LEDs' directions from the heading and the half-angle of their cone, as unit
+    /// vectors `[cos, sin]`, so tracing a beam takes no trigonometry.
+    ir_leds: [[f64; 2]; 6],
+    ir_cone_half: [f64; 2],
     /// Per robot, the earliest time a packet could be due at the host (`u64::MAX`: none queued);
     /// never later than the truth, so the host's polls skip a robot's cold state when nothing
     /// can be due.
@@ -491,6 +495,8 @@ impl Simulation {
         // substeps for bodies that move 0.1 mm per step.
         params.num_solver_iterations =
             (f64::from(params.dt) / SOLVER_SUBSTEP_S).ceil().max(1.0) as usize;
+        let ir_leds = spec.ir_led_angle_deg.map(unit_vector);
+        let ir_cone_half = unit_vector(spec.ir_cone_half_deg);
         let mut sim = Self {
             obstacle_boxes: Vec::with_capacity(obstacles.len()),
             robot_boxes: Vec::with_capacity(robots.len()),
@@ -520,6 +526,8 @@ impl Simulation {
             contacts: Vec::new(),
             served: vec![0; n_robots],
             host_due_ns: vec![u64::MAX; n_robots],
+            ir_leds,
+            ir_cone_half,
         };
         sim.read_sensors();
         sim
@@ -856,14 +864,7 @@ impl Simulation {
             grid: &self.grid,
         };
         let spec = &self.spec;
-        // The LEDs' directions and the cone as unit vectors once per step, so tracing a beam
-        // takes no trigonometry.
-        let unit = |deg: f64| {
-            let (s, c) = deg.to_radians().sin_cos();
-            [c, s]
-        };
-        let cone_half = unit(spec.ir_cone_half_deg);
-        let leds = spec.ir_led_angle_deg.map(unit);
+        let (leds, cone_half) = (&self.ir_leds, self.ir_cone_half);
         let trace = |i: usize, led: u8, power: u8| {
             let &led = leds.get(usize::from(led))?;
             let level = usize::from(power.clamp(1, 4)) - 1;
@@ -1138,6 +1139,12 @@ impl Simulation {
             self.robots[i].lit = lit;
         }
     }
+}
+
+/// The direction `deg` degrees from the x axis as `[cos, sin]`.
+fn unit_vector(deg: f64) -> [f64; 2] {
+    let (s, c) = deg.to_radians().sin_cos();
+    [c, s]
 }
 
 /// What the drive train did to one robot's body over a physics step.

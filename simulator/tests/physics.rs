@@ -10,8 +10,6 @@ use common::{connected, connected_with, run, send, world};
 /// the CLI offers): moves, turns and pushes must come out the same at all three, since the drive
 /// train is integrated on the clock step whatever the physics rate.
 const PHYSICS_RATES: [u32; 3] = [1, 2, 5];
-/// Line following, at the same rates.
-const LINE_RATES: [u32; 3] = PHYSICS_RATES;
 use firmware::hal::Side;
 use protocol::packets::*;
 use protocol::AnyPacket;
@@ -81,7 +79,7 @@ fn unwrap_angle(prev: f64, now: f64) -> f64 {
 
 #[test]
 fn line_following_laps_the_oval_three_times() {
-    for every in LINE_RATES {
+    for every in PHYSICS_RATES {
         lap_the_oval(every);
     }
 }
@@ -311,7 +309,7 @@ fn trajectory(seed: u64, physics_every: u32) -> Vec<(f64, f64, f64)> {
 
 #[test]
 fn one_seed_is_bit_identical_and_two_seeds_differ() {
-    for every in LINE_RATES {
+    for every in PHYSICS_RATES {
         let a = trajectory(11, every);
         let b = trajectory(11, every);
         let c = trajectory(12, every);
