@@ -72,6 +72,12 @@ const START_SIGMA_RAD: f64 = 0.0175;
 /// Contradictions: this much travel with the sensor seeing no tape where the model puts it
 /// squarely on one, or seeing tape where the model has none, and the robot is lost.
 const CONTRADICTION_M: f64 = 0.025;
+/// And this long standing still: a robot knocked off the tape at rest never drives the distance.
+const CONTRADICTION_AT_REST: std::time::Duration = std::time::Duration::from_millis(500);
+/// From the line sensor's centre to its outermost spots, and how far over a tape's edge a spot
+/// must be to see it for certain.
+const SPOTS_REACH_M: f64 = 3.5 * world::robot::LINE_SPOT_PITCH_M;
+const SPOT_MARGIN_M: f64 = 0.0015;
 /// "Squarely on a tape": the sensor, with twice its uncertainty, within this of the tape's
 /// centre line (the spots reach about 13 mm either side) and clear of every node, where tapes
 /// end or meet.
@@ -153,6 +159,10 @@ struct Estimate {
     cov: Matrix3<f64>,
     /// Travel with no tape under the sensor where the model puts it squarely on one.
     no_tape_m: f64,
+    /// Time standing still in that state.
+    no_tape_at_rest: std::time::Duration,
+    /// When the previous update was made.
+    last_at: Option<tokio::time::Instant>,
     /// Travel with tape under the sensor where the model has none.
     stray_tape_m: f64,
     /// Whether the line sensor saw tape at the previous update.
@@ -176,6 +186,8 @@ impl Default for Estimate {
                 START_SIGMA_RAD * START_SIGMA_RAD,
             )),
             no_tape_m: 0.0,
+            no_tape_at_rest: std::time::Duration::ZERO,
+            last_at: None,
             stray_tape_m: 0.0,
             saw_tape: false,
             lost: None,
@@ -473,8 +485,13 @@ impl WorldModel {
             e.mark_held_m = 0.0;
         }
         e.last_mark = u.state.line.mark;
+        let since_last = e.last_at.map_or(std::time::Duration::ZERO, |t| {
+            u.at.saturating_duration_since(t)
+        });
+        e.last_at = Some(u.at);
         if e.lost.is_none() {
-            let why = self.contradiction(&mut e, pose, sees_tape, position_um, driven);
+            let at_rest = (driven.abs() <= 1e-4 && turned.abs() <= 1e-3).then_some(since_last);
+            let why = self.contradiction(&mut e, pose, sees_tape, position_um, driven, at_rest);
             // A contradiction may have been resolved by moving the estimate.
             pose = e.correction.apply(u.pose);
             if let Some(why) = why {
@@ -484,6 +501,7 @@ impl WorldModel {
                 });
                 e.stats.lost_episodes += 1;
                 e.no_tape_m = 0.0;
+                e.no_tape_at_rest = std::time::Duration::ZERO;
                 e.stray_tape_m = 0.0;
                 // The contradiction says the estimate is off by at least what the line sensor
                 // reaches either side; the safety check keeps everyone that much farther away.
@@ -546,7 +564,8 @@ impl WorldModel {
         transition
     }
 
-    /// Why what the robot senses contradicts the model, once it has for long enough.
+    /// Why what the robot senses contradicts the model, once it has for long enough; `at_rest`
+    /// is the time since the last update when the robot did not move in it.
     fn contradiction(
         &self,
         e: &mut Estimate,
@@ -554,6 +573,7 @@ impl WorldModel {
         sees_tape: bool,
         position_um: i16,
         driven: f64,
+        at_rest: Option<std::time::Duration>,
     ) -> Option<String> {
         let sigma = sigmas(&e.cov);
         if sigma.position_m > LOST_SIGMA_M {
@@ -567,6 +587,7 @@ impl WorldModel {
         let sensor = Point2::new(pose.x, pose.y) + heading * LINE_SENSOR_AHEAD_M;
         if sees_tape {
             e.no_tape_m = 0.0;
+            e.no_tape_at_rest = std::time::Duration::ZERO;
             let right = Vector2::new(heading.y, -heading.x);
             let seen = sensor + right * (f64::from(position_um) * 1e-6);
             let far = self
@@ -626,14 +647,45 @@ impl WorldModel {
             } else {
                 0.0
             };
+            // Time counts only while the robot stands: one that drives is judged by distance.
+            e.no_tape_at_rest = match at_rest {
+                Some(dt) if self.under_sensor(&e.cov, sensor, heading) => e.no_tape_at_rest + dt,
+                _ => std::time::Duration::ZERO,
+            };
             if e.no_tape_m > CONTRADICTION_M {
                 return Some(format!(
                     "its line sensor saw no tape for {:.0} mm where the model puts it on one",
                     e.no_tape_m * 1e3
                 ));
             }
+            if e.no_tape_at_rest > CONTRADICTION_AT_REST {
+                return Some(format!(
+                    "its line sensor saw no tape for {:.1} s standing where the model puts it on one",
+                    e.no_tape_at_rest.as_secs_f64()
+                ));
+            }
         }
         None
+    }
+
+    /// Whether a line sensor at `sensor` facing `heading` must see a tape, with twice the
+    /// uncertainty `cov` across it: one of its spots over the tape by a margin, aligned with it,
+    /// clear of nodes and junctions.
+    fn under_sensor(&self, cov: &Matrix3<f64>, sensor: Point2<f64>, heading: Vector2<f64>) -> bool {
+        self.track.nearest(sensor).is_some_and(|n| {
+            let edge = &self.track.edges()[n.edge];
+            let len = self.track.edge_length(n.edge);
+            let normal = Vector2::new(-n.tangent.y, n.tangent.x);
+            let cos = n.tangent.dot(&heading).abs();
+            // Along the row of spots, which stands across the heading, the tape is farther than
+            // across the tape by 1/cos.
+            let across = n.distance_m / cos.max(ALIGNED_RAD.cos()) + 2.0 * sigma_along(cov, normal);
+            across < SPOTS_REACH_M + edge.width_m / 2.0 - SPOT_MARGIN_M
+                && cos > ALIGNED_RAD.cos()
+                && n.offset_m > NODE_CLEAR_M
+                && n.offset_m < len - NODE_CLEAR_M
+                && !self.in_junction(n.point)
+        })
     }
 
     /// An extended Kalman filter update from one sighting of a tape along the robot's heading:
@@ -1292,6 +1344,42 @@ mod tests {
         let stats = d.model.localisation_stats(d.at);
         assert_eq!(stats[0].1.lost_episodes, 1);
         assert!(stats[0].1.lost_time > std::time::Duration::ZERO);
+    }
+
+    /// Knocked off the tape while it stands, a robot never drives the distance the rule above
+    /// waits for: its sensor seeing no tape for half a second where the model puts it on one is
+    /// enough. Standing on the tape, it is not lost however long it waits.
+    #[test]
+    fn a_robot_knocked_off_the_tape_at_rest_is_found_lost() {
+        let world = presets::grid(4, 4, 1);
+        let start = Pose {
+            x: 0.2,
+            y: 0.2,
+            theta: 0.0,
+        };
+        let mut d = Drive::new(world.track.clone(), start);
+        d.drive_to(0.27, 0.2, 0.0, 0.0);
+        for _ in 0..100 {
+            d.report();
+        }
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
+        d.truth.y += 0.03;
+        for _ in 0..20 {
+            d.report();
+        }
+        assert!(
+            d.transitions.is_empty(),
+            "lost after 0.4 s: {:?}",
+            d.transitions
+        );
+        for _ in 0..10 {
+            d.report();
+        }
+        match d.transitions.first() {
+            Some(Transition::Lost(why)) => assert!(why.contains("standing"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(d.view().localisation, Localisation::Lost);
     }
 
     #[test]

@@ -83,6 +83,30 @@ fn a_kicked_robot_is_where_its_model_is_not() {
     }
 }
 
+/// A follower knocked 5 cm off the ring stops at once (its firmware loses the line) and stands:
+/// it never drives the distance after which a missing tape makes it lost, but standing where the
+/// model puts it on the tape and seeing none is enough. It is re-localised and the token goes on.
+#[test]
+fn a_follower_knocked_off_the_ring_at_rest_is_relocalised_and_the_token_goes_round() {
+    let p = Plan::sim("token_ring")
+        .duration(Duration::from_secs(300))
+        .kick(coordinator::Kick {
+            robot: 2,
+            at: Duration::from_secs(5),
+            dx_m: 0.05,
+            dy_m: 0.0,
+            dtheta_rad: 0.0,
+            sideways_m: 0.0,
+        });
+    let report = run(p, &Registry::builtin());
+    assert!(report.success(), "{report}");
+    let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
+    assert!(kicked.localisation.lost_episodes >= 1, "{report}");
+    assert!(kicked.worst_model_error_m.unwrap() > 0.04, "{report}");
+    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{report}");
+    assert!(kicked.odometry_error_m().unwrap() > 0.04, "{report}");
+}
+
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
 struct Fragile {
     inner: behaviours::square_walk::SquareWalk,
