@@ -167,6 +167,8 @@ struct Estimate {
     stray_tape_m: f64,
     /// Whether the line sensor saw tape at the previous update.
     saw_tape: bool,
+    /// Whether the firmware followed a tape it saw at the previous update.
+    was_following: bool,
     /// Set while the robot is lost.
     lost: Option<Lost>,
     stats: LocalisationStats,
@@ -190,6 +192,7 @@ impl Default for Estimate {
             last_at: None,
             stray_tape_m: 0.0,
             saw_tape: false,
+            was_following: false,
             lost: None,
             stats: LocalisationStats::default(),
         }
@@ -516,6 +519,7 @@ impl WorldModel {
             }
         }
         e.saw_tape = sees_tape;
+        e.was_following = following;
         let uncertainty = sigmas(&e.cov);
         e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
         let localisation = if e.lost.is_some() {
@@ -657,6 +661,11 @@ impl WorldModel {
                     "its line sensor saw no tape for {:.0} mm where the model puts it on one",
                     e.no_tape_m * 1e3
                 ));
+            }
+            // A follower loses its tape only by leaving it: where the model has it squarely on
+            // one, the model is wrong (it was knocked aside, or slid off in a bend).
+            if e.was_following && squarely {
+                return Some("its follower lost the tape where the model puts it on one".into());
             }
             if e.no_tape_at_rest > CONTRADICTION_AT_REST {
                 return Some(format!(
@@ -1139,6 +1148,8 @@ mod tests {
         /// Each transition and the true pose when it came.
         transitions: Vec<Transition>,
         transition_at: Vec<Pose>,
+        /// Whether the firmware follows the tape while its sensor sees one.
+        following: bool,
     }
 
     impl Drive {
@@ -1154,6 +1165,7 @@ mod tests {
                 at: tokio::time::Instant::now(),
                 transitions: Vec::new(),
                 transition_at: Vec::new(),
+                following: false,
             };
             d.report();
             d
@@ -1169,10 +1181,14 @@ mod tests {
 
         fn report(&mut self) {
             self.at += std::time::Duration::from_millis(20);
+            let mut state = sense(&self.track, self.truth);
+            if self.following && state.line.flags & LINE_LOST == 0 {
+                state.line.flags |= LINE_FOLLOWING;
+            }
             let u = StateUpdated {
                 robot_id: 1,
                 at: self.at,
-                state: sense(&self.track, self.truth),
+                state,
                 reduced: false,
                 pose: self.odometry,
             };
@@ -1380,6 +1396,28 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert_eq!(d.view().localisation, Localisation::Lost);
+    }
+
+    /// A follower knocked off its tape loses it at once: where the model has it squarely on the
+    /// tape, that alone makes it lost, before it drives or stands for any time.
+    #[test]
+    fn a_follower_that_loses_its_tape_where_the_model_has_one_is_lost_at_once() {
+        let world = presets::grid(4, 4, 1);
+        let start = Pose {
+            x: 0.2,
+            y: 0.2,
+            theta: 0.0,
+        };
+        let mut d = Drive::new(world.track.clone(), start);
+        d.following = true;
+        d.drive_to(0.27, 0.2, 0.0, 0.0);
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
+        d.truth.y += 0.03;
+        d.report();
+        match d.transitions.first() {
+            Some(Transition::Lost(why)) => assert!(why.contains("follower"), "{why}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
