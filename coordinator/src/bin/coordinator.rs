@@ -133,7 +133,7 @@ enum Sub {
     },
     /// Run a behaviour over seeds and settings, each run its own experiment, and summarise the
     /// success rate and metrics (`coordinator sweep merge` combines shards).
-    Sweep(coordinator::sweep::SweepCommand),
+    Sweep(Box<coordinator::sweep::SweepCommand>),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]

@@ -59,6 +59,10 @@ pub struct SweepArgs {
     /// 200; default: the coordinator's).
     #[arg(long = "physics-hz", value_name = "HZ1,HZ2")]
     pub physics_hz: Vec<String>,
+    /// A kick to try, as `coordinator --kick` takes it (several in one run joined by `+`, `none`
+    /// for none); repeat the flag for more values.
+    #[arg(long = "kick", value_name = "ID:SECONDS:DX,DY[,DEG]")]
+    pub kicks: Vec<String>,
     /// Each run's time limit in simulated seconds (default: the coordinator's).
     #[arg(long, value_parser = simulator::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
@@ -142,6 +146,10 @@ pub struct Definition {
     /// Physics rates, Hz (empty: the coordinator's default). Sweeps written before it read empty.
     #[serde(default)]
     pub physics_hz: Vec<u32>,
+    /// Kicks, each as `coordinator --kick` takes it, several joined by `+`, or `none` (empty: no
+    /// kick). Sweeps written before it read empty.
+    #[serde(default)]
+    pub kicks: Vec<String>,
     /// Behaviour parameters and their values, in the order given.
     pub params: Vec<(String, Vec<String>)>,
     /// Seeds, in the order given.
@@ -161,6 +169,8 @@ pub struct RunSpec {
     pub robots: Option<usize>,
     /// Physics rate in Hz, when the sweep lists rates.
     pub physics_hz: Option<u32>,
+    /// Kicks, when the sweep lists them.
+    pub kick: Option<String>,
     /// Parameter values, in the sweep's parameter order.
     pub params: Vec<(String, String)>,
     /// Seed.
@@ -179,6 +189,9 @@ impl RunSpec {
         }
         if let Some(hz) = self.physics_hz {
             c.push(("physics_hz".to_string(), hz.to_string()));
+        }
+        if let Some(k) = &self.kick {
+            c.push(("kick".to_string(), k.clone()));
         }
         c.extend(self.params.iter().cloned());
         c
@@ -263,11 +276,26 @@ impl Definition {
                     .map_err(|e| anyhow::anyhow!("--physics-hz {s:?}: {e}"))
             })
             .collect::<Result<Vec<_>>>()?;
+        let mut kicks: Vec<String> = Vec::new();
+        for k in &a.kicks {
+            let k = k.trim();
+            if k != "none" {
+                for part in k.split('+') {
+                    simulator::cli::parse_kick(part.trim())
+                        .map_err(|e| anyhow::anyhow!("--kick {k:?}: {e}"))?;
+                }
+            }
+            if kicks.iter().any(|q| q == k) {
+                bail!("--kick {k:?} is given twice");
+            }
+            kicks.push(k.to_string());
+        }
         Ok(Self {
             behaviour,
             worlds,
             robots,
             physics_hz,
+            kicks,
             params,
             seeds,
             duration_s: a.duration,
@@ -292,12 +320,15 @@ impl Definition {
                 self.physics_hz.iter().map(ToString::to_string).collect(),
             ));
         }
+        if self.kicks.len() > 1 {
+            s.push(("kick".to_string(), self.kicks.clone()));
+        }
         s.extend(self.params.iter().filter(|(_, v)| v.len() > 1).cloned());
         s
     }
 
-    /// Every run, in the sweep's fixed order: worlds, robot counts, physics rates, then parameters in the order
-    /// given, the seed varying fastest.
+    /// Every run, in the sweep's fixed order: worlds, robot counts, physics rates, kicks, then
+    /// parameters in the order given, the seed varying fastest.
     pub fn runs(&self) -> Vec<RunSpec> {
         let worlds: Vec<Option<String>> = if self.worlds.is_empty() {
             vec![None]
@@ -313,6 +344,11 @@ impl Definition {
             vec![None]
         } else {
             self.physics_hz.iter().copied().map(Some).collect()
+        };
+        let kicks: Vec<Option<String>> = if self.kicks.is_empty() {
+            vec![None]
+        } else {
+            self.kicks.iter().cloned().map(Some).collect()
         };
         let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
         for (k, vs) in &self.params {
@@ -331,16 +367,19 @@ impl Definition {
         for w in &worlds {
             for n in &robots {
                 for hz in &rates {
-                    for c in &combos {
-                        for &seed in &self.seeds {
-                            runs.push(RunSpec {
-                                index: runs.len(),
-                                world: w.clone(),
-                                robots: *n,
-                                physics_hz: *hz,
-                                params: c.clone(),
-                                seed,
-                            });
+                    for kick in &kicks {
+                        for c in &combos {
+                            for &seed in &self.seeds {
+                                runs.push(RunSpec {
+                                    index: runs.len(),
+                                    world: w.clone(),
+                                    robots: *n,
+                                    physics_hz: *hz,
+                                    kick: kick.clone(),
+                                    params: c.clone(),
+                                    seed,
+                                });
+                            }
                         }
                     }
                 }
@@ -398,7 +437,7 @@ pub fn parse_param_list(s: &str) -> Result<(String, Vec<String>)> {
     if k.is_empty() {
         bail!("--param {s:?}: the key is empty");
     }
-    if ["seed", "world", "robots", "physics_hz"].contains(&k) {
+    if ["seed", "world", "robots", "physics_hz", "kick"].contains(&k) {
         let flag = match k {
             "seed" => "seeds",
             "physics_hz" => "physics-hz",
@@ -499,6 +538,7 @@ mod tests {
             worlds: vec!["oval".into(), "ring".into()],
             robots: vec![],
             physics_hz: vec![],
+            kicks: vec![],
             params: vec![("laps".into(), vec!["1".into(), "2".into()])],
             seeds: vec![3, 4, 5],
             duration_s: None,
@@ -525,6 +565,7 @@ mod tests {
             worlds: vec![],
             robots: vec![2],
             physics_hz: vec![1000, 500],
+            kicks: vec![],
             params: vec![("side".into(), vec!["0.1".into()])],
             seeds: vec![1, 2],
             duration_s: None,
@@ -553,5 +594,42 @@ mod tests {
         let old: Definition = serde_json::from_value(old).unwrap();
         assert!(old.physics_hz.is_empty());
         assert_eq!(old.runs().len(), 2);
+    }
+
+    #[test]
+    fn kicks_are_a_coordinate_checked_before_any_run() {
+        let args = |kicks: &[&str]| SweepArgs {
+            behaviour: Some("token_ring".into()),
+            seeds: Some("1..2".into()),
+            params: vec![],
+            worlds: vec![],
+            robots: vec![],
+            physics_hz: vec![],
+            kicks: kicks.iter().map(|k| k.to_string()).collect(),
+            duration: None,
+            jobs: None,
+            shard: None,
+            record_failures: false,
+            out: None,
+        };
+        let d = Definition::from_args(&args(&["none", "2:5:0.05,0", "1:3:0,0.02+3:8:0.01,0,10"]))
+            .unwrap();
+        let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "kick=none,seed=1",
+                "kick=none,seed=2",
+                "kick=2:5:0.05,0,seed=1",
+                "kick=2:5:0.05,0,seed=2",
+                "kick=1:3:0,0.02+3:8:0.01,0,10,seed=1",
+                "kick=1:3:0,0.02+3:8:0.01,0,10,seed=2",
+            ]
+        );
+        assert_eq!(d.swept()[0].0, "kick");
+        let bad = Definition::from_args(&args(&["2:5:0.05"])).unwrap_err();
+        assert!(bad.to_string().contains("--kick"), "{bad}");
+        assert!(Definition::from_args(&args(&["none", "none"])).is_err());
+        assert!(parse_param_list("kick=1").is_err());
     }
 }

@@ -183,6 +183,11 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
     if let Some(hz) = spec.physics_hz {
         cmd.arg("--physics-hz").arg(hz.to_string());
     }
+    for kick in spec.kick.iter().filter(|k| *k != "none") {
+        for part in kick.split('+') {
+            cmd.arg("--kick").arg(part.trim());
+        }
+    }
     for (k, v) in &spec.params {
         cmd.arg("--param").arg(format!("{k}={v}"));
     }
@@ -207,6 +212,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         world: spec.world.clone(),
         robots: spec.robots,
         physics_hz: spec.physics_hz,
+        kick: spec.kick.clone(),
         params: spec.params.iter().cloned().collect(),
         seed: spec.seed,
         outcome: Outcome::Error,

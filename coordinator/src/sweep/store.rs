@@ -42,6 +42,9 @@ pub struct RunResult {
     /// Physics rate in Hz, when swept.
     #[serde(default)]
     pub physics_hz: Option<u32>,
+    /// Kicks, when swept.
+    #[serde(default)]
+    pub kick: Option<String>,
     /// Parameter values.
     pub params: BTreeMap<String, String>,
     /// Seed.

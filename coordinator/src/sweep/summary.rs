@@ -301,6 +301,9 @@ pub fn coordinate_keys(definition: &Definition) -> Vec<String> {
     if !definition.physics_hz.is_empty() {
         keys.push("physics_hz".to_string());
     }
+    if !definition.kicks.is_empty() {
+        keys.push("kick".to_string());
+    }
     keys.extend(definition.params.iter().map(|(k, _)| k.clone()));
     keys
 }
@@ -311,6 +314,7 @@ pub fn coordinate(r: &RunResult, key: &str) -> String {
         "world" => r.world.clone().unwrap_or_default(),
         "robots" => r.robots.map(|n| n.to_string()).unwrap_or_default(),
         "physics_hz" => r.physics_hz.map(|n| n.to_string()).unwrap_or_default(),
+        "kick" => r.kick.clone().unwrap_or_default(),
         k => r.params.get(k).cloned().unwrap_or_default(),
     }
 }
