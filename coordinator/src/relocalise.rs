@@ -6,11 +6,8 @@
 //! 2. face across the tape and creep to one side, then back through to the other, as far as the
 //!    model's uncertainty reaches (the model fixes the position across the first tape the
 //!    sensor sees, see [`crate::world_model::Transition::Fixed`]);
-//! 3. stop there, drive the centre onto the tape and face along it; if the sensor then sees no
-//!    tape (the model's heading, or the tape's direction there, is off), turn on the spot either
-//!    way until it does;
-//! 4. follow the tape slowly (the firmware steers by its line sensor, whatever the model's heading
-//!    says) until the model tracks the robot again, then stop.
+//! 3. stop there, drive the centre onto the tape, face along it and creep forward until the model
+//!    tracks the robot again on that tape.
 //!
 //! If the sweep finds no tape, the robot stays stopped and lost: it is safer where it stands than
 //! driving on a guess.
@@ -31,16 +28,12 @@ use crate::world_model::RELOCATE_M;
 const SEARCH_MPS: f32 = 0.03;
 /// Turning speed (wheel speed) of the routine's turns.
 const TURN_MPS: f32 = 0.03;
-/// The scan for the tape's direction: this far one way, then back through to as far the other.
-const SCAN_DEG: f32 = 45.0;
 /// Longest wait for the wheels to stop after a stop command.
 const BRAKE_LIMIT: Duration = Duration::from_millis(600);
 /// Below this wheel speed a robot counts as stopped.
 const STOPPED_MPS: f32 = 0.005;
-/// The follow along the tape once the robot faces along it ends without a match this far from
-/// where it began, or after this long (the firmware stops following a tape it loses).
-const FOLLOW_MAX_M: f64 = 0.1;
-const FOLLOW_LIMIT: Duration = Duration::from_secs(6);
+/// The creep along the tape once the robot faces along it.
+const CREEP_M: f32 = 0.03;
 /// A move the safety check holds is tried again this much later, at most this many times.
 const RETRY_AFTER: Duration = Duration::from_millis(500);
 const MAX_RETRIES: u32 = 20;
@@ -52,8 +45,6 @@ pub enum Action {
     Stop,
     /// Queue these moves (checked by the safety check; held ones are reported back).
     Moves(Vec<MoveCommand>),
-    /// Follow the tape under the sensor at this speed (checked by the safety check).
-    Follow(f32),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -64,10 +55,6 @@ enum Step {
     Sweeping,
     /// Driving onto the tape and facing along it.
     Aligning,
-    /// Turning on the spot either way until the sensor sees the tape.
-    Scanning,
-    /// Following the tape from `from` since `since`, until the model tracks the robot.
-    Following { from: Point2<f64>, since: Instant },
     /// The routine gave up: the robot stays stopped.
     GaveUp,
 }
@@ -97,8 +84,6 @@ pub struct Relocaliser {
     retries: u32,
     /// Moves to try again.
     pending: Vec<MoveCommand>,
-    /// A follow to try again.
-    pending_follow: bool,
 }
 
 impl Relocaliser {
@@ -124,7 +109,6 @@ impl Relocaliser {
                 retry_at: None,
                 retries: 0,
                 pending: Vec::new(),
-                pending_follow: false,
             },
             Action::Stop,
         )
@@ -134,7 +118,6 @@ impl Relocaliser {
     pub fn give_up(&mut self) {
         self.step = Step::GaveUp;
         self.pending.clear();
-        self.pending_follow = false;
         self.retry_at = None;
     }
 
@@ -146,56 +129,6 @@ impl Relocaliser {
     /// Whether the robot is back on the tape, facing along it, with the routine's moves done.
     pub fn aligned(&self) -> bool {
         self.step == Step::Aligning && self.outstanding == 0 && self.pending.is_empty()
-    }
-
-    /// Follow the tape from where the robot stands, at the search speed.
-    pub fn follow(&mut self, view: &RobotView, now: Instant) -> Action {
-        // A scan's turns still queued are dropped by the stop before the follow.
-        self.outstanding = 0;
-        self.step = Step::Following {
-            from: Point2::new(view.pose.x, view.pose.y),
-            since: now,
-        };
-        Action::Follow(SEARCH_MPS)
-    }
-
-    /// Turn on the spot one way and then the other, watching for the tape.
-    pub fn scan(&mut self) -> Action {
-        self.step = Step::Scanning;
-        let moves = vec![turn(SCAN_DEG), turn(-2.0 * SCAN_DEG)];
-        self.outstanding += moves.len();
-        Action::Moves(moves)
-    }
-
-    /// Whether the robot is turning on the spot to find the tape's direction.
-    pub fn scanning(&self) -> bool {
-        self.step == Step::Scanning
-    }
-
-    /// Whether the robot is following the tape.
-    pub fn following(&self) -> bool {
-        matches!(self.step, Step::Following { .. })
-    }
-
-    /// Whether a follow has gone as far or as long as it may without the model tracking the
-    /// robot.
-    pub fn followed_in_vain(&self, view: &RobotView, now: Instant) -> bool {
-        let Step::Following { from, since } = self.step else {
-            return false;
-        };
-        let gone = (view.pose.x - from.x).hypot(view.pose.y - from.y);
-        gone > FOLLOW_MAX_M || now.saturating_duration_since(since) > FOLLOW_LIMIT
-    }
-
-    /// The safety check held the follow: try it again a little later.
-    pub fn follow_held(&mut self, now: Instant) {
-        self.retries += 1;
-        if self.retries > MAX_RETRIES {
-            self.give_up();
-        } else {
-            self.pending_follow = true;
-            self.retry_at = Some(now + RETRY_AFTER);
-        }
     }
 
     /// The model fixed the robot's position across a tape: stop the sweep there.
@@ -217,9 +150,8 @@ impl Relocaliser {
             return;
         }
         self.outstanding = self.outstanding.saturating_sub(1);
-        let searching = matches!(self.step, Step::Sweeping | Step::Scanning);
-        if self.outstanding == 0 && searching && self.pending.is_empty() {
-            // The whole sweep or scan went by without a tape.
+        if self.outstanding == 0 && self.step == Step::Sweeping && self.pending.is_empty() {
+            // The whole sweep went by without a tape.
             self.step = Step::GaveUp;
         }
     }
@@ -245,12 +177,6 @@ impl Relocaliser {
                 return None;
             }
             self.retry_at = None;
-            if std::mem::take(&mut self.pending_follow) {
-                if let Step::Following { since, .. } = &mut self.step {
-                    *since = now;
-                }
-                return Some(Action::Follow(SEARCH_MPS));
-            }
             let moves = std::mem::take(&mut self.pending);
             self.outstanding += moves.len();
             return Some(Action::Moves(moves));
@@ -291,8 +217,8 @@ impl Relocaliser {
         ]
     }
 
-    /// Drive the centre onto the tape the model now places the robot beside and face along it
-    /// the way the robot drove.
+    /// Drive the centre onto the tape the model now places the robot beside, face along it the
+    /// way the robot drove, and creep forward so the sensor runs along it.
     fn align(&self, pose: Pose, track: &Track) -> Vec<MoveCommand> {
         let centre = Point2::new(pose.x, pose.y);
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
@@ -311,14 +237,8 @@ impl Relocaliser {
             moves.push(straight(onto));
         }
         moves.push(turn_to(pose.theta, along.y.atan2(along.x)));
+        moves.push(straight(CREEP_M));
         moves
-    }
-}
-
-fn turn(angle_deg: f32) -> MoveCommand {
-    MoveCommand::Rotate {
-        angle_deg,
-        speed_mps: TURN_MPS,
     }
 }
 
@@ -402,39 +322,6 @@ mod tests {
             r.move_finished(true);
         }
         assert!(r.aligned() && !r.gave_up());
-    }
-
-    /// Back on the tape with the sensor beside it, the robot turns either way to find it; a scan
-    /// that finds nothing gives up. Following, it gives up past 10 cm or 6 s without a match.
-    #[test]
-    fn a_scan_turns_either_way_and_a_follow_ends_in_vain_past_its_limits() {
-        let world = presets::grid(4, 4, 1);
-        let now = Instant::now();
-        let at = view(0.3, 0.2, 0.0);
-        let (mut r, _) = Relocaliser::start(&at, &world.track, now);
-        let Action::Moves(scan) = r.scan() else {
-            panic!("a scan is moves");
-        };
-        let angles: Vec<f32> = scan
-            .iter()
-            .map(|m| match m {
-                MoveCommand::Rotate { angle_deg, .. } => *angle_deg,
-                other => panic!("{other:?}"),
-            })
-            .collect();
-        assert_eq!(angles, vec![45.0, -90.0]);
-        assert!(r.scanning());
-        r.move_finished(true);
-        assert!(!r.gave_up());
-        r.move_finished(true);
-        assert!(r.gave_up(), "both turns went by without the tape");
-
-        let (mut r, _) = Relocaliser::start(&at, &world.track, now);
-        assert_eq!(r.follow(&at, now), Action::Follow(SEARCH_MPS));
-        assert!(r.following());
-        assert!(!r.followed_in_vain(&view(0.39, 0.2, 0.0), now + Duration::from_secs(5)));
-        assert!(r.followed_in_vain(&view(0.41, 0.2, 0.0), now));
-        assert!(r.followed_in_vain(&at, now + Duration::from_secs(7)));
     }
 
     /// A sweep that ends without a tape gives up: the robot stays where it stopped.

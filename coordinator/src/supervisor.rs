@@ -424,17 +424,6 @@ impl Supervisor {
                     r.addr().do_send(Command::Stop);
                 }
             }
-            Action::Follow(speed) => {
-                let intent = Intent::FollowLine {
-                    robot: id,
-                    speed: Some(speed),
-                };
-                if !self.carry_out_checked(intent, world) {
-                    if let Some(r) = self.relocalising.get_mut(&id) {
-                        r.follow_held(Instant::now());
-                    }
-                }
-            }
             Action::Moves(moves) => {
                 tracing::debug!(robot = id, ?moves, "re-localisation moves");
                 let mut held = Vec::new();
@@ -475,60 +464,18 @@ impl Supervisor {
             }
             _ => routine.poll(&view, &track, now),
         };
-        let tracking = view.localisation == behaviours::Localisation::Tracking;
         if routine.aligned() {
-            if tracking {
+            if view.localisation == behaviours::Localisation::Tracking {
                 info!(robot = id, "robot re-localised");
                 self.relocalising.remove(&id);
                 self.tell(id, LocalisationEvent::Found, ctx);
                 return;
             }
-            // The model's heading may be what is off: the firmware follows the tape by its
-            // sensor, and the model matches the tape it follows. A sensor beside the tape
-            // finds it turning on the spot (the centre is on it).
-            let next = if sees_tape(&view) {
-                info!(
-                    robot = id,
-                    "back on the tape: following it until the model matches"
-                );
-                routine.follow(&view, now)
-            } else {
-                info!(
-                    robot = id,
-                    "back on the tape, the sensor beside it: turning to find it"
-                );
-                routine.scan()
-            };
-            self.act(id, next, &world);
-            return;
-        }
-        if routine.scanning() && sees_tape(&view) {
-            info!(
+            warn!(
                 robot = id,
-                "the sensor found the tape: following it until the model matches"
+                "back on the tape, but it does not match: it stays stopped"
             );
-            let follow = routine.follow(&view, now);
-            self.act(id, Action::Stop, &world);
-            self.act(id, follow, &world);
-            return;
-        }
-        if routine.following() {
-            if tracking {
-                info!(robot = id, "robot re-localised following the tape");
-                self.relocalising.remove(&id);
-                self.act(id, Action::Stop, &world);
-                self.tell(id, LocalisationEvent::Found, ctx);
-                return;
-            }
-            if routine.followed_in_vain(&view, now) {
-                warn!(
-                    robot = id,
-                    "followed the tape, but it does not match: it stays stopped"
-                );
-                routine.give_up();
-                self.act(id, Action::Stop, &world);
-                return;
-            }
+            routine.give_up();
         }
         if let Some(action) = action {
             self.act(id, action, &world);
@@ -674,11 +621,6 @@ impl Supervisor {
             self.relocalise(u.robot_id, transition, ctx);
         }
     }
-}
-
-/// Whether the robot's line sensor sees a tape in its latest state.
-fn sees_tape(view: &behaviours::RobotView) -> bool {
-    view.state.line.flags & protocol::state::LINE_LOST == 0
 }
 
 impl Handler<RobotEvent> for Supervisor {
