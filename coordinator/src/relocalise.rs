@@ -76,6 +76,9 @@ pub struct Relocaliser {
     heading: f64,
     /// How far to each side the sweep goes.
     reach_m: f64,
+    /// Where the robot's centre may go without its footprint leaving the arena: lower and upper
+    /// corners.
+    room: ([f64; 2], [f64; 2]),
     step: Step,
     /// Moves of this routine still queued on the robot.
     outstanding: usize,
@@ -87,8 +90,14 @@ pub struct Relocaliser {
 }
 
 impl Relocaliser {
-    /// Starts the routine for a robot lost at `view`; the first action is the stop.
-    pub fn start(view: &RobotView, track: &Track, now: Instant) -> (Self, Action) {
+    /// Starts the routine for a robot lost at `view` whose centre may move within `room` (lower
+    /// and upper corners); the first action is the stop.
+    pub fn start(
+        view: &RobotView,
+        track: &Track,
+        room: ([f64; 2], [f64; 2]),
+        now: Instant,
+    ) -> (Self, Action) {
         let centre = Point2::new(view.pose.x, view.pose.y);
         let tape = track.nearest(centre).map_or(
             Vector2::new(view.pose.theta.cos(), view.pose.theta.sin()),
@@ -101,6 +110,7 @@ impl Relocaliser {
                 tape,
                 heading: view.pose.theta,
                 reach_m,
+                room,
                 step: Step::Braking {
                     since: now,
                     then: After::Sweep,
@@ -205,15 +215,19 @@ impl Relocaliser {
 
     /// Face across the tape, then out to one side, back through to the other, and back. The
     /// sensor leads the centre by 16 mm, so each leg goes that much farther: the sensor then
-    /// covers the reach on both sides.
+    /// covers the reach on both sides. Near the arena's edge a side is searched only as far as
+    /// the robot can go (the safety check would hold the whole leg).
     fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
         let across = Vector2::new(-self.tape.y, self.tape.x);
-        let reach = (self.reach_m + LINE_SENSOR_AHEAD_M) as f32;
+        let reach = self.reach_m + LINE_SENSOR_AHEAD_M;
+        let at = [pose.x, pose.y];
+        let out = reach.min(room_along(at, [across.x, across.y], self.room)) as f32;
+        let back = reach.min(room_along(at, [-across.x, -across.y], self.room)) as f32;
         vec![
             turn_to(pose.theta, across.y.atan2(across.x)),
-            straight(reach),
-            straight(-2.0 * reach),
-            straight(reach),
+            straight(out),
+            straight(-(out + back)),
+            straight(back),
         ]
     }
 
@@ -242,6 +256,20 @@ impl Relocaliser {
     }
 }
 
+/// How far from `at` along the unit `dir` a point stays within `room` (lower and upper corners);
+/// 0 when it is outside already.
+fn room_along(at: [f64; 2], dir: [f64; 2], room: ([f64; 2], [f64; 2])) -> f64 {
+    let mut t = f64::INFINITY;
+    for a in 0..2 {
+        if dir[a] > 1e-12 {
+            t = t.min((room.1[a] - at[a]) / dir[a]);
+        } else if dir[a] < -1e-12 {
+            t = t.min((room.0[a] - at[a]) / dir[a]);
+        }
+    }
+    t.max(0.0)
+}
+
 fn straight(distance_m: f32) -> MoveCommand {
     MoveCommand::Straight {
         distance_m,
@@ -262,6 +290,8 @@ mod tests {
     use super::*;
     use simulator::world::presets;
 
+    const ROOM: ([f64; 2], [f64; 2]) = ([0.0, 0.0], [10.0, 10.0]);
+
     fn view(x: f64, y: f64, theta: f64) -> RobotView {
         RobotView {
             id: 1,
@@ -281,7 +311,7 @@ mod tests {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let lost = view(0.3, 0.225, 0.1);
-        let (mut r, first) = Relocaliser::start(&lost, &world.track, now);
+        let (mut r, first) = Relocaliser::start(&lost, &world.track, ROOM, now);
         assert_eq!(first, Action::Stop);
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("a stopped robot sweeps at once");
@@ -324,13 +354,44 @@ mod tests {
         assert!(r.aligned() && !r.gave_up());
     }
 
+    /// Near the arena's edge the sweep goes only as far as the robot may: the side towards the
+    /// wall is searched up to it, the other side in full.
+    #[test]
+    fn a_sweep_by_the_wall_stops_at_the_room_the_robot_has() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        // Lost beside the tape at y = 0.2, its centre allowed no lower than y = 0.18.
+        let lost = view(0.3, 0.205, 0.0);
+        let room = ([0.05, 0.18], [1.0, 1.0]);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, room, now);
+        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
+            panic!("sweep");
+        };
+        let legs: Vec<f32> = sweep[1..]
+            .iter()
+            .map(|m| match m {
+                MoveCommand::Straight { distance_m, .. } => *distance_m,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        // Facing +y or -y: the side towards y = 0.18 has 25 mm, the other the full 76 mm.
+        let (up, down) = if legs[0] > 0.05 {
+            (legs[0], legs[2])
+        } else {
+            (legs[2], legs[0])
+        };
+        assert!((up - 0.076).abs() < 1e-4, "{legs:?}");
+        assert!((down - 0.025).abs() < 1e-4, "{legs:?}");
+        assert!((legs[1] + up + down).abs() < 1e-4, "{legs:?}");
+    }
+
     /// A sweep that ends without a tape gives up: the robot stays where it stopped.
     #[test]
     fn a_sweep_that_finds_nothing_gives_up() {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let lost = view(0.3, 0.3, 0.0);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, now);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, ROOM, now);
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("sweep");
         };

@@ -109,6 +109,8 @@ const RELOCALISATION_TAG: u32 = u32::MAX;
 /// A robot that is moving within this distance (centre to centre) of a lost robot, plus twice
 /// the lost robot's uncertainty, is stopped too: the lost one may be anywhere in that reach.
 const LOST_REACH_M: f64 = 0.06;
+/// How much a lost robot's uncertainty may grow over its sweep (12–16 cm of driving).
+const SWEEP_SIGMA_GROWTH_M: f64 = 0.003;
 
 /// A robot whose queue the robot reports empty this long after the last move was sent has done
 /// them all (the report of the newest move has certainly arrived by then).
@@ -372,7 +374,15 @@ impl Supervisor {
             robot = id,
             why, "robot lost: stopping it and re-localising it"
         );
-        let (routine, first) = Relocaliser::start(&view, self.model.track(), Instant::now());
+        // The sweep stays where the safety check lets the lost robot's footprint go: its
+        // circumscribed circle, the margin and its uncertainty (with room for it to grow a
+        // little on the way) inside the arena.
+        let clear = (self.safety.length_m / 2.0).hypot(self.safety.width_m / 2.0)
+            + self.safety.margin_m
+            + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
+        let (w, h) = self.arena;
+        let room = ([clear, clear], [w - clear, h - clear]);
+        let (routine, first) = Relocaliser::start(&view, self.model.track(), room, Instant::now());
         self.relocalising.insert(id, routine);
         self.act(id, first, &world);
         let reach = LOST_REACH_M + safety::UNCERTAINTY_SIGMAS * view.uncertainty.position_m;

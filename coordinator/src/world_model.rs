@@ -249,6 +249,21 @@ struct TapeMatch {
     heading_gain: f64,
 }
 
+/// Per node of `track`: whether exactly two edges end there and their tapes run on in line
+/// (within 10°), as where an oval's bend meets its straight; there a sensor sees tape on both
+/// sides of the node.
+fn through_nodes(track: &Track) -> Vec<bool> {
+    let mut ends: Vec<Vec<Vector2<f64>>> = vec![Vec::new(); track.nodes().len()];
+    for (i, e) in track.edges().iter().enumerate() {
+        let len = track.edge_length(i);
+        ends[e.from].push(track.point_at(i, 0.0).1);
+        ends[e.to].push(track.point_at(i, len).1);
+    }
+    ends.iter()
+        .map(|t| t.len() == 2 && t[0].dot(&t[1]).abs() > 10f64.to_radians().cos())
+        .collect()
+}
+
 /// Every junction and the radius around it in which its tapes run too close together to be told
 /// apart: a fork whose branch leaves tangentially on a 0.15 m arc needs about 8 cm, a crossing
 /// only the minimum.
@@ -309,18 +324,22 @@ pub struct WorldModel {
     /// Nodes where three or more tapes meet, and how far around each the tapes are too close
     /// together for the sensor to tell them apart.
     junctions: Arc<Vec<(Point2<f64>, f64)>>,
+    /// Per node: whether exactly two tapes meet there in line, so the tape runs on through it.
+    through: Arc<Vec<bool>>,
 }
 
 impl WorldModel {
     /// An empty model over `track`.
     pub fn new(track: Arc<Track>) -> Self {
         let junctions = junction_zones(&track);
+        let through = through_nodes(&track);
         Self {
             robots: Arc::new(DashMap::new()),
             ordered: Arc::default(),
             estimates: Arc::new(DashMap::new()),
             track,
             junctions: Arc::new(junctions),
+            through: Arc::new(through),
         }
     }
 
@@ -642,8 +661,7 @@ impl WorldModel {
                 let normal = Vector2::new(-n.tangent.y, n.tangent.x);
                 n.distance_m + 2.0 * sigma_along(&e.cov, normal) < SQUARELY_M
                     && n.tangent.dot(&heading).abs() > ALIGNED_RAD.cos()
-                    && n.offset_m > NODE_CLEAR_M
-                    && n.offset_m < len - NODE_CLEAR_M
+                    && self.clear_of_ends(&n, len)
                     && !self.in_junction(n.point)
             });
             e.no_tape_m = if squarely {
@@ -691,8 +709,7 @@ impl WorldModel {
             let across = n.distance_m / cos.max(ALIGNED_RAD.cos()) + 2.0 * sigma_along(cov, normal);
             across < SPOTS_REACH_M + edge.width_m / 2.0 - SPOT_MARGIN_M
                 && cos > ALIGNED_RAD.cos()
-                && n.offset_m > NODE_CLEAR_M
-                && n.offset_m < len - NODE_CLEAR_M
+                && self.clear_of_ends(&n, len)
                 && !self.in_junction(n.point)
         })
     }
@@ -738,6 +755,14 @@ impl WorldModel {
             },
             cov,
         ))
+    }
+
+    /// Whether a point on an edge `len` long is clear of where its tape ends or meets others:
+    /// far enough from each end node, or that node only carries the tape on in line.
+    fn clear_of_ends(&self, n: &world::track::TrackPoint, len: f64) -> bool {
+        let e = &self.track.edges()[n.edge];
+        (n.offset_m > NODE_CLEAR_M || self.through[e.from])
+            && (n.offset_m < len - NODE_CLEAR_M || self.through[e.to])
     }
 
     fn in_junction(&self, p: Point2<f64>) -> bool {

@@ -107,6 +107,31 @@ fn a_follower_knocked_off_the_ring_at_rest_is_relocalised_and_the_token_goes_rou
     assert!(kicked.odometry_error_m().unwrap() > 0.04, "{report}");
 }
 
+/// A follower knocked 3 cm and 10° off the oval where its bend meets the straight, by the
+/// arena's edge: its firmware loses the tape where the model has it squarely on one (a node where
+/// two tapes run on in line is no tape end), so it is lost at once; its sweep searches towards
+/// the wall only as far as it may go, finds the tape, and the laps go on.
+#[test]
+fn a_follower_knocked_off_a_bend_by_the_wall_is_relocalised_and_finishes_its_laps() {
+    let p = Plan::sim("line_follow")
+        .seed(101)
+        .duration(Duration::from_secs(600))
+        .kick(coordinator::Kick {
+            robot: 2,
+            at: Duration::from_secs(6),
+            dx_m: 0.03,
+            dy_m: 0.0,
+            dtheta_rad: 10f64.to_radians(),
+            sideways_m: 0.0,
+        });
+    let report = run(p, &Registry::builtin());
+    assert!(report.success(), "{report}");
+    let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
+    assert!(kicked.localisation.lost_episodes >= 1, "{report}");
+    assert!(kicked.odometry_error_m().unwrap() > 0.02, "{report}");
+    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{report}");
+}
+
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
 struct Fragile {
     inner: behaviours::square_walk::SquareWalk,
