@@ -697,7 +697,7 @@ impl WorldModel {
 
     /// Whether a line sensor at `sensor` facing `heading` must see a tape, with twice the
     /// uncertainty `cov` across it: one of its spots over the tape by a margin, aligned with it,
-    /// clear of nodes and junctions.
+    /// clear of tape ends and junctions.
     fn under_sensor(&self, cov: &Matrix3<f64>, sensor: Point2<f64>, heading: Vector2<f64>) -> bool {
         self.track.nearest(sensor).is_some_and(|n| {
             let edge = &self.track.edges()[n.edge];
