@@ -4,7 +4,9 @@
 //! Runs each size with physics at 1 kHz (every clock step), 500 Hz and 200 Hz (`physics_every` 5:
 //! contacts every 5 ms; motors, tyres, encoders, firmware and links still on the 1 kHz clock).
 //! Prints simulated seconds per wall second, the cost per robot per millisecond of simulated
-//! time, and that cost relative to the same size at 1 kHz measured in the same process.
+//! time, and that cost relative to the same size at 1 kHz measured in the same process; and what
+//! the robots were doing at the end (how many still drove, how many robot–robot contacts there had
+//! been), since line followers on a dense lattice collide and a jammed pile is cheaper to serve.
 
 /// The coordinator binary's allocator, so the bench measures what it runs.
 #[global_allocator]
@@ -23,7 +25,9 @@ fn send(sim: &mut Simulation, i: usize, p: impl Into<AnyPacket>) {
     sim.host_send(i, buf[..n].to_vec());
 }
 
-fn measure(robots: usize, simulated: Duration, physics_every: u32) -> (f64, f64) {
+/// Simulated seconds per wall second, wall seconds per robot-millisecond, robots still driving at
+/// the end, robot–robot contacts since the start.
+fn measure(robots: usize, simulated: Duration, physics_every: u32) -> (f64, f64, usize, usize) {
     let world = presets::grid(0, 0, robots);
     let mut sim = Simulation::new(
         world,
@@ -71,13 +75,30 @@ fn measure(robots: usize, simulated: Duration, physics_every: u32) -> (f64, f64)
     let wall = start.elapsed().as_secs_f64();
     let sim_s = (sim.now() - start_sim).as_secs_f64();
     let steps = sim_s / sim.dt().as_secs_f64();
-    (sim_s / wall, wall / (steps * robots as f64))
+    // Faster than a creep on either wheel: moving, not stalled against another robot.
+    let moving = sim
+        .robots()
+        .iter()
+        .filter(|r| {
+            r.wheel_speeds_mps(sim.spec())
+                .iter()
+                .any(|v| v.abs() > 0.02)
+        })
+        .count();
+    (
+        sim_s / wall,
+        wall / (steps * robots as f64),
+        moving,
+        sim.robot_collisions(),
+    )
 }
 
 fn main() {
     // `cargo test --benches` runs this unoptimised: keep that a smoke run.
     let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
-    println!("robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz");
+    println!(
+        "robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz   moving at end   contacts"
+    );
     // `RTF_ROBOTS=1000` measures one team size only, `RTF_HZ=200` one physics rate,
     // `RTF_SECS=60` a longer run (profiling).
     let only: Option<usize> = std::env::var("RTF_ROBOTS")
@@ -103,10 +124,11 @@ fn main() {
             if only_hz.is_some_and(|h| h != hz) {
                 continue;
             }
-            let (rtf, per) = measure(robots, Duration::from_secs_f64(secs), every);
+            let (rtf, per, moving, contacts) =
+                measure(robots, Duration::from_secs_f64(secs), every);
             let ratio = per / *base.get_or_insert(per);
             println!(
-                "{robots:6}  {hz:4} Hz  {rtf:13.1}x  {:15.2} µs  {ratio:13.2}",
+                "{robots:6}  {hz:4} Hz  {rtf:13.1}x  {:15.2} µs  {ratio:13.2}  {moving:7} of {robots:<5}  {contacts:8}",
                 per * 1e6
             );
         }
