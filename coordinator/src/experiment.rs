@@ -265,6 +265,20 @@ pub struct Kick {
     pub sideways_m: f64,
 }
 
+impl From<simulator::cli::KickArg> for Kick {
+    /// The kick `--kick ID:SECONDS:DX,DY[,DEG]` gives (no sideways shove).
+    fn from(k: simulator::cli::KickArg) -> Self {
+        Self {
+            robot: k.robot,
+            at: k.at,
+            dx_m: k.dx_m,
+            dy_m: k.dy_m,
+            dtheta_rad: k.dtheta_rad,
+            sideways_m: 0.0,
+        }
+    }
+}
+
 /// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LinkFault {

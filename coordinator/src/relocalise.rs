@@ -292,6 +292,17 @@ mod tests {
 
     const ROOM: ([f64; 2], [f64; 2]) = ([0.0, 0.0], [10.0, 10.0]);
 
+    /// The distances of moves that must all be straight.
+    fn straights(moves: &[MoveCommand]) -> Vec<f32> {
+        moves
+            .iter()
+            .map(|m| match m {
+                MoveCommand::Straight { distance_m, .. } => *distance_m,
+                other => panic!("{other:?}"),
+            })
+            .collect()
+    }
+
     fn view(x: f64, y: f64, theta: f64) -> RobotView {
         RobotView {
             id: 1,
@@ -321,13 +332,7 @@ mod tests {
         };
         // The tape runs along x: face across it (±90°) from a heading of 0.1 rad.
         assert!(((angle_deg.abs() - 90.0) as f64 - 0.1f64.to_degrees()).abs() < 12.0);
-        let reaches: Vec<f32> = sweep[1..]
-            .iter()
-            .map(|m| match m {
-                MoveCommand::Straight { distance_m, .. } => *distance_m,
-                other => panic!("{other:?}"),
-            })
-            .collect();
+        let reaches = straights(&sweep[1..]);
         assert_eq!(reaches, vec![0.076, -0.152, 0.076]);
         // The tape is found: stop, then align from the fixed pose (facing +y, centre 16 mm
         // below the tape at y = 0.2).
@@ -367,13 +372,7 @@ mod tests {
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("sweep");
         };
-        let legs: Vec<f32> = sweep[1..]
-            .iter()
-            .map(|m| match m {
-                MoveCommand::Straight { distance_m, .. } => *distance_m,
-                other => panic!("{other:?}"),
-            })
-            .collect();
+        let legs = straights(&sweep[1..]);
         // Facing +y or -y: the side towards y = 0.18 has 25 mm, the other the full 76 mm.
         let (up, down) = if legs[0] > 0.05 {
             (legs[0], legs[2])

@@ -199,6 +199,18 @@ impl Default for Estimate {
     }
 }
 
+/// A tape the robot faces along, as the model has it under the line sensor.
+#[derive(Clone, Copy, Debug)]
+struct TapeAlong {
+    /// From the sensor's centre to the tape's centre line.
+    distance_m: f64,
+    /// Cosine of the angle between the heading and the tape.
+    cos: f64,
+    /// 1σ of the position across the tape.
+    sigma_m: f64,
+    width_m: f64,
+}
+
 /// A lost episode in progress.
 #[derive(Clone, Debug)]
 struct Lost {
@@ -656,22 +668,22 @@ impl WorldModel {
             }
         } else {
             e.stray_tape_m = 0.0;
-            let squarely = self.track.nearest(sensor).is_some_and(|n| {
-                let len = self.track.edge_length(n.edge);
-                let normal = Vector2::new(-n.tangent.y, n.tangent.x);
-                n.distance_m + 2.0 * sigma_along(&e.cov, normal) < SQUARELY_M
-                    && n.tangent.dot(&heading).abs() > ALIGNED_RAD.cos()
-                    && self.clear_of_ends(&n, len)
-                    && !self.in_junction(n.point)
-            });
+            let tape = self.tape_along(&e.cov, sensor, heading);
+            let squarely = tape.is_some_and(|t| t.distance_m + 2.0 * t.sigma_m < SQUARELY_M);
             e.no_tape_m = if squarely {
                 e.no_tape_m + driven.abs()
             } else {
                 0.0
             };
             // Time counts only while the robot stands: one that drives is judged by distance.
+            // The row of spots stands across the heading: along it the tape is farther than across
+            // the tape by 1/cos. One spot must be over the tape by a margin.
+            let under_a_spot = tape.is_some_and(|t| {
+                t.distance_m / t.cos + 2.0 * t.sigma_m
+                    < SPOTS_REACH_M + t.width_m / 2.0 - SPOT_MARGIN_M
+            });
             e.no_tape_at_rest = match at_rest {
-                Some(dt) if self.under_sensor(&e.cov, sensor, heading) => e.no_tape_at_rest + dt,
+                Some(dt) if under_a_spot => e.no_tape_at_rest + dt,
                 _ => std::time::Duration::ZERO,
             };
             if e.no_tape_m > CONTRADICTION_M {
@@ -695,23 +707,26 @@ impl WorldModel {
         None
     }
 
-    /// Whether a line sensor at `sensor` facing `heading` must see a tape, with twice the
-    /// uncertainty `cov` across it: one of its spots over the tape by a margin, aligned with it,
-    /// clear of tape ends and junctions.
-    fn under_sensor(&self, cov: &Matrix3<f64>, sensor: Point2<f64>, heading: Vector2<f64>) -> bool {
-        self.track.nearest(sensor).is_some_and(|n| {
-            let edge = &self.track.edges()[n.edge];
-            let len = self.track.edge_length(n.edge);
-            let normal = Vector2::new(-n.tangent.y, n.tangent.x);
-            let cos = n.tangent.dot(&heading).abs();
-            // Along the row of spots, which stands across the heading, the tape is farther than
-            // across the tape by 1/cos.
-            let across = n.distance_m / cos.max(ALIGNED_RAD.cos()) + 2.0 * sigma_along(cov, normal);
-            across < SPOTS_REACH_M + edge.width_m / 2.0 - SPOT_MARGIN_M
-                && cos > ALIGNED_RAD.cos()
-                && self.clear_of_ends(&n, len)
-                && !self.in_junction(n.point)
-        })
+    /// The tape nearest the line sensor at `sensor`, when the robot faces along it (facing
+    /// `heading`) clear of tape ends and junctions, where the model expects the sensor to see it
+    /// if near enough; `cov` gives the uncertainty across it.
+    fn tape_along(
+        &self,
+        cov: &Matrix3<f64>,
+        sensor: Point2<f64>,
+        heading: Vector2<f64>,
+    ) -> Option<TapeAlong> {
+        let n = self.track.nearest(sensor)?;
+        let cos = n.tangent.dot(&heading).abs();
+        let len = self.track.edge_length(n.edge);
+        (cos > ALIGNED_RAD.cos() && self.clear_of_ends(&n, len) && !self.in_junction(n.point)).then(
+            || TapeAlong {
+                distance_m: n.distance_m,
+                cos,
+                sigma_m: sigma_along(cov, Vector2::new(-n.tangent.y, n.tangent.x)),
+                width_m: self.track.edges()[n.edge].width_m,
+            },
+        )
     }
 
     /// An extended Kalman filter update from one sighting of a tape along the robot's heading:
@@ -1387,11 +1402,9 @@ mod tests {
         assert!(stats[0].1.lost_time > std::time::Duration::ZERO);
     }
 
-    /// Knocked off the tape while it stands, a robot never drives the distance the rule above
-    /// waits for: its sensor seeing no tape for half a second where the model puts it on one is
-    /// enough. Standing on the tape, it is not lost however long it waits.
-    #[test]
-    fn a_robot_knocked_off_the_tape_at_rest_is_found_lost() {
+    /// A robot driven along the tape at y = 0.2 of a grid from its node at x = 0.2 to `x`,
+    /// following it or not.
+    fn on_the_tape_at_x(x: f64, following: bool) -> Drive {
         let world = presets::grid(4, 4, 1);
         let start = Pose {
             x: 0.2,
@@ -1399,7 +1412,17 @@ mod tests {
             theta: 0.0,
         };
         let mut d = Drive::new(world.track.clone(), start);
-        d.drive_to(0.27, 0.2, 0.0, 0.0);
+        d.following = following;
+        d.drive_to(x, 0.2, 0.0, 0.0);
+        d
+    }
+
+    /// Knocked off the tape while it stands, a robot never drives the distance the rule above
+    /// waits for: its sensor seeing no tape for half a second where the model puts it on one is
+    /// enough. Standing on the tape, it is not lost however long it waits.
+    #[test]
+    fn a_robot_knocked_off_the_tape_at_rest_is_found_lost() {
+        let mut d = on_the_tape_at_x(0.27, false);
         for _ in 0..100 {
             d.report();
         }
@@ -1427,15 +1450,7 @@ mod tests {
     /// tape, that alone makes it lost, before it drives or stands for any time.
     #[test]
     fn a_follower_that_loses_its_tape_where_the_model_has_one_is_lost_at_once() {
-        let world = presets::grid(4, 4, 1);
-        let start = Pose {
-            x: 0.2,
-            y: 0.2,
-            theta: 0.0,
-        };
-        let mut d = Drive::new(world.track.clone(), start);
-        d.following = true;
-        d.drive_to(0.27, 0.2, 0.0, 0.0);
+        let mut d = on_the_tape_at_x(0.27, true);
         assert!(d.transitions.is_empty(), "{:?}", d.transitions);
         d.truth.y += 0.03;
         d.report();

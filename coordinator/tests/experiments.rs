@@ -13,6 +13,11 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
         .duration(Duration::from_secs(60))
 }
 
+/// A kick as `coordinator --kick` takes it.
+fn kick(spec: &str) -> coordinator::Kick {
+    simulator::cli::parse_kick(spec).expect("a kick").into()
+}
+
 fn run(plan: Plan, registry: &Registry) -> Report {
     coordinator::run_blocking(plan, registry).expect("experiment runs")
 }
@@ -61,14 +66,7 @@ fn square_walk_with_three_robots_closes_every_square_in_ground_truth() {
 
 #[test]
 fn a_kicked_robot_is_where_its_model_is_not() {
-    let p = plan("square_walk", 3).kick(coordinator::Kick {
-        robot: 2,
-        at: Duration::from_secs(1),
-        dx_m: 0.0,
-        dy_m: 0.03,
-        dtheta_rad: 0.0,
-        sideways_m: 0.0,
-    });
+    let p = plan("square_walk", 3).kick(kick("2:1:0,0.03"));
     let report = run(p, &Registry::builtin());
     for r in &report.robots {
         let worst = r.worst_model_error_m.unwrap();
@@ -90,14 +88,7 @@ fn a_kicked_robot_is_where_its_model_is_not() {
 fn a_follower_knocked_off_the_ring_at_rest_is_relocalised_and_the_token_goes_round() {
     let p = Plan::sim("token_ring")
         .duration(Duration::from_secs(300))
-        .kick(coordinator::Kick {
-            robot: 2,
-            at: Duration::from_secs(5),
-            dx_m: 0.05,
-            dy_m: 0.0,
-            dtheta_rad: 0.0,
-            sideways_m: 0.0,
-        });
+        .kick(kick("2:5:0.05,0"));
     let report = run(p, &Registry::builtin());
     assert!(report.success(), "{report}");
     let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
@@ -116,14 +107,7 @@ fn a_follower_knocked_off_a_bend_by_the_wall_is_relocalised_and_finishes_its_lap
     let p = Plan::sim("line_follow")
         .seed(101)
         .duration(Duration::from_secs(600))
-        .kick(coordinator::Kick {
-            robot: 2,
-            at: Duration::from_secs(6),
-            dx_m: 0.03,
-            dy_m: 0.0,
-            dtheta_rad: 10f64.to_radians(),
-            sideways_m: 0.0,
-        });
+        .kick(kick("2:6:0.03,0,10"));
     let report = run(p, &Registry::builtin());
     assert!(report.success(), "{report}");
     let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");

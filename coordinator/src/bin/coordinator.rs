@@ -286,14 +286,8 @@ fn plan(args: &Args) -> Result<Plan> {
         kicks: args
             .kick
             .iter()
-            .map(|k| coordinator::Kick {
-                robot: k.robot,
-                at: k.at,
-                dx_m: k.dx_m,
-                dy_m: k.dy_m,
-                dtheta_rad: k.dtheta_rad,
-                sideways_m: 0.0,
-            })
+            .copied()
+            .map(coordinator::Kick::from)
             .collect(),
         settings: args.settings.clone(),
         physics_every: args.physics_every,
