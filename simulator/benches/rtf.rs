@@ -1,12 +1,14 @@
 //! Real-time factor of the simulator with the firmware in the loop: 1, 10, 100 and 1,000 robots
-//! line following on `grid` worlds, every robot connected and reflecting its state.
+//! line following, every robot connected and reflecting its state, on two worlds: `grid` (one
+//! robot per edge of a lattice; they meet at junctions, collide and pile up) and `serpentine` (one
+//! loop the robots follow spread out in the same direction, so every robot keeps driving).
 //!
 //! Runs each size with physics at 1 kHz (every clock step), 500 Hz and 200 Hz (`physics_every` 5:
 //! contacts every 5 ms; motors, tyres, encoders, firmware and links still on the 1 kHz clock).
 //! Prints simulated seconds per wall second, the cost per robot per millisecond of simulated
 //! time, and that cost relative to the same size at 1 kHz measured in the same process; and what
 //! the robots were doing at the end (how many still drove, how many robot–robot contacts there had
-//! been), since line followers on a dense lattice collide and a jammed pile is cheaper to serve.
+//! been), since the two worlds are not the same work.
 
 /// The coordinator binary's allocator, so the bench measures what it runs.
 #[global_allocator]
@@ -16,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use protocol::packets::{LineFollow, Ping};
 use protocol::AnyPacket;
-use simulator::world::presets;
+use simulator::world::{presets, World};
 use simulator::{SimConfig, Simulation};
 
 fn send(sim: &mut Simulation, i: usize, p: impl Into<AnyPacket>) {
@@ -27,8 +29,8 @@ fn send(sim: &mut Simulation, i: usize, p: impl Into<AnyPacket>) {
 
 /// Simulated seconds per wall second, wall seconds per robot-millisecond, robots still driving at
 /// the end, robot–robot contacts since the start.
-fn measure(robots: usize, simulated: Duration, physics_every: u32) -> (f64, f64, usize, usize) {
-    let world = presets::grid(0, 0, robots);
+fn measure(world: World, simulated: Duration, physics_every: u32) -> (f64, f64, usize, usize) {
+    let robots = world.robots.len();
     let mut sim = Simulation::new(
         world,
         SimConfig {
@@ -97,40 +99,50 @@ fn main() {
     // `cargo test --benches` runs this unoptimised: keep that a smoke run.
     let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
     println!(
-        "robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz   moving at end   contacts"
+        "world        robots  physics   sim s / wall s   wall per robot-ms   cost vs 1 kHz   moving at end   contacts"
     );
     // `RTF_ROBOTS=1000` measures one team size only, `RTF_HZ=200` one physics rate,
-    // `RTF_SECS=60` a longer run (profiling).
+    // `RTF_WORLD=grid` one world, `RTF_SECS=60` a longer run (profiling).
     let only: Option<usize> = std::env::var("RTF_ROBOTS")
         .ok()
         .and_then(|v| v.parse().ok());
     let only_secs: Option<f64> = std::env::var("RTF_SECS").ok().and_then(|v| v.parse().ok());
     let only_hz: Option<u32> = std::env::var("RTF_HZ").ok().and_then(|v| v.parse().ok());
-    for robots in [1usize, 10, 100, 1000] {
-        if only.is_some_and(|n| n != robots) {
+    let only_world = std::env::var("RTF_WORLD").ok();
+    let worlds: [(&str, fn(usize) -> World); 2] = [
+        ("grid", |n| presets::grid(0, 0, n)),
+        ("serpentine", presets::serpentine),
+    ];
+    for (name, make) in worlds {
+        if only_world.as_deref().is_some_and(|w| w != name) {
             continue;
         }
-        let secs = if let Some(s) = only_secs {
-            s
-        } else if quick {
-            0.05
-        } else if robots >= 1000 {
-            2.0
-        } else {
-            5.0
-        };
-        let mut base = None;
-        for (hz, every) in [(1000, 1), (500, 2), (200, 5)] {
-            if only_hz.is_some_and(|h| h != hz) {
+        for robots in [1usize, 10, 100, 1000] {
+            if only.is_some_and(|n| n != robots) {
                 continue;
             }
-            let (rtf, per, moving, contacts) =
-                measure(robots, Duration::from_secs_f64(secs), every);
-            let ratio = per / *base.get_or_insert(per);
-            println!(
-                "{robots:6}  {hz:4} Hz  {rtf:13.1}x  {:15.2} µs  {ratio:13.2}  {moving:7} of {robots:<5}  {contacts:8}",
-                per * 1e6
-            );
+            let secs = if let Some(s) = only_secs {
+                s
+            } else if quick {
+                0.05
+            } else if robots >= 1000 {
+                2.0
+            } else {
+                5.0
+            };
+            let mut base = None;
+            for (hz, every) in [(1000, 1), (500, 2), (200, 5)] {
+                if only_hz.is_some_and(|h| h != hz) {
+                    continue;
+                }
+                let (rtf, per, moving, contacts) =
+                    measure(make(robots), Duration::from_secs_f64(secs), every);
+                let ratio = per / *base.get_or_insert(per);
+                println!(
+                    "{name:11}  {robots:6}  {hz:4} Hz  {rtf:13.1}x  {:15.2} µs  {ratio:13.2}  {moving:7} of {robots:<5}  {contacts:8}",
+                    per * 1e6
+                );
+            }
         }
     }
 }
