@@ -95,6 +95,9 @@ fn measure(world: World, simulated: Duration, physics_every: u32) -> (f64, f64, 
     )
 }
 
+/// A world for a number of robots.
+type MakeWorld = fn(usize) -> World;
+
 fn main() {
     // `cargo test --benches` runs this unoptimised: keep that a smoke run.
     let quick = std::env::args().any(|a| a == "--test" || a == "--bench") && cfg!(debug_assertions);
@@ -109,7 +112,7 @@ fn main() {
     let only_secs: Option<f64> = std::env::var("RTF_SECS").ok().and_then(|v| v.parse().ok());
     let only_hz: Option<u32> = std::env::var("RTF_HZ").ok().and_then(|v| v.parse().ok());
     let only_world = std::env::var("RTF_WORLD").ok();
-    let worlds: [(&str, fn(usize) -> World); 2] = [
+    let worlds: [(&str, MakeWorld); 2] = [
         ("grid", |n| presets::grid(0, 0, n)),
         ("serpentine", presets::serpentine),
     ];
