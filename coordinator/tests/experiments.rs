@@ -81,6 +81,26 @@ fn a_kicked_robot_is_where_its_model_is_not() {
     }
 }
 
+/// Runs a plan that kicks robot `id` and checks that the behaviour still succeeded, that the
+/// robot was found lost and re-localised to within 1 cm of the truth, and that its odometry alone
+/// stayed more than `odometry_off_m` off (the kick was real and the model did the finding).
+fn relocalised(plan: Plan, id: u16, odometry_off_m: f64) -> Report {
+    let report = run(plan, &Registry::builtin());
+    assert!(report.success(), "{report}");
+    let kicked = report
+        .robots
+        .iter()
+        .find(|r| r.id == id)
+        .expect("kicked robot");
+    assert!(kicked.localisation.lost_episodes >= 1, "{report}");
+    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{report}");
+    assert!(
+        kicked.odometry_error_m().unwrap() > odometry_off_m,
+        "{report}"
+    );
+    report
+}
+
 /// A follower knocked 5 cm off the ring stops at once (its firmware loses the line) and stands:
 /// it never drives the distance after which a missing tape makes it lost, but standing where the
 /// model puts it on the tape and seeing none is enough. It is re-localised and the token goes on.
@@ -89,13 +109,9 @@ fn a_follower_knocked_off_the_ring_at_rest_is_relocalised_and_the_token_goes_rou
     let p = Plan::sim("token_ring")
         .duration(Duration::from_secs(300))
         .kick(kick("2:5:0.05,0"));
-    let report = run(p, &Registry::builtin());
-    assert!(report.success(), "{report}");
+    let report = relocalised(p, 2, 0.04);
     let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
-    assert!(kicked.localisation.lost_episodes >= 1, "{report}");
     assert!(kicked.worst_model_error_m.unwrap() > 0.04, "{report}");
-    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{report}");
-    assert!(kicked.odometry_error_m().unwrap() > 0.04, "{report}");
 }
 
 /// A follower knocked 3 cm and 10° off the oval where its bend meets the straight, by the
@@ -108,12 +124,7 @@ fn a_follower_knocked_off_a_bend_by_the_wall_is_relocalised_and_finishes_its_lap
         .seed(101)
         .duration(Duration::from_secs(600))
         .kick(kick("2:6:0.03,0,10"));
-    let report = run(p, &Registry::builtin());
-    assert!(report.success(), "{report}");
-    let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
-    assert!(kicked.localisation.lost_episodes >= 1, "{report}");
-    assert!(kicked.odometry_error_m().unwrap() > 0.02, "{report}");
-    assert!(kicked.estimate_error_m().unwrap() < 0.01, "{report}");
+    relocalised(p, 2, 0.02);
 }
 
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
