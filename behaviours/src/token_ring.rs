@@ -67,6 +67,9 @@ const SETTLE: Duration = Duration::from_millis(100);
 const START_STAGGER: Duration = Duration::from_secs(1);
 /// Nothing may take longer than this without a token pass.
 const PASS_LIMIT: Duration = Duration::from_secs(90);
+/// A front sighting bounds the gap this long: a robot in view is reported again every report
+/// period (500 ms by default) with the weakest power seen in it, and one out of view is not.
+const SIGHTING_FRESH: Duration = Duration::from_millis(600);
 /// The share of the loop every robot's encoders must measure per round of the token.
 const LOOP_SHARE_PER_ROUND: f64 = 0.5;
 
@@ -77,6 +80,9 @@ struct Bot {
     /// Since when the robot's wheels have read zero speed, if they do.
     still_since: Option<Duration>,
     started: bool,
+    /// The last robot its front receiver identified: when, and the reach of the weakest power
+    /// that got through (an upper bound on the distance between them).
+    front_sighting: Option<(Duration, f64)>,
 }
 
 /// The token ring behaviour.
@@ -174,6 +180,19 @@ impl TokenRing {
             }
         }
         best
+    }
+
+    /// The most a fresh front sighting lets the gap to the robot in front be, sensor to sensor:
+    /// the sighting's reach (our front receiver to its LED) plus a robot's length. A follower
+    /// whose model is off along the tape (odometry cannot see a shove along it, and the line
+    /// sensor cannot either) still stops short of the robot its receiver sees.
+    fn sighted_gap(&self, id: u16, now: Duration) -> f64 {
+        match self.bots.get(&id).and_then(|b| b.front_sighting) {
+            Some((at, reach)) if now.saturating_sub(at) <= SIGHTING_FRESH => {
+                reach + world::robot::LENGTH_M
+            }
+            _ => f64::INFINITY,
+        }
     }
 
     /// Whether a body the world model knows (another robot, an arena wall) can account for a
@@ -419,7 +438,9 @@ impl TokenRing {
                 }
             }
             let ahead = self.ahead(view, world);
-            let gap = ahead.map_or(f64::INFINITY, |(_, d)| d);
+            let gap = ahead
+                .map_or(f64::INFINITY, |(_, d)| d)
+                .min(self.sighted_gap(id, world.time));
             let level = view.state.proximity.front_obstacle;
             let unknown = level > 0 && !self.reflection_explained(view, world, level);
             if level == 1 && unknown {
@@ -491,6 +512,13 @@ impl Behaviour for TokenRing {
         world: &WorldSnapshot,
         team: &mut Team,
     ) -> Vec<Intent> {
+        if let Event::Sighting(e) = event {
+            if e.side == Side::Front {
+                if let Some(b) = self.bots.get_mut(&robot) {
+                    b.front_sighting = Some((world.time, f64::from(e.range_mm) / 1000.0));
+                }
+            }
+        }
         match event {
             // The carrier's front receiver identified the robot ahead of it.
             Event::Sighting(e)

@@ -127,6 +127,24 @@ fn a_follower_knocked_off_a_bend_by_the_wall_is_relocalised_and_finishes_its_lap
     relocalised(p, 2, 0.02);
 }
 
+/// A robot shoved 4 cm along the ring's tape: neither its odometry nor its line sensor can see
+/// that, so its model stays several centimetres off all run. The robot behind it stops short of
+/// it anyway, on what its front receiver reports (the identified robot is within the reach of the
+/// weakest power that got through), and the token goes round without a touch.
+#[test]
+fn followers_keep_apart_by_their_front_receivers_when_a_model_is_off_along_the_tape() {
+    let p = Plan::sim("token_ring")
+        .seed(101)
+        .duration(Duration::from_secs(300))
+        .kick(kick("1:8:0,0.04"));
+    let report = run(p, &Registry::builtin());
+    assert!(report.success(), "{report}");
+    assert_eq!(report.robot_collisions(), Some(0), "{report}");
+    // The model error is what the receivers had to make up for; were it small, the model's own
+    // gap would have kept them apart.
+    assert!(report.worst_model_error_m().unwrap() > 0.04, "{report}");
+}
+
 /// Panics on its second snapshot the first time it is built, then walks like `square_walk`.
 struct Fragile {
     inner: behaviours::square_walk::SquareWalk,
