@@ -4,7 +4,9 @@
 //! The robots' firmware does the following; the host only sets speeds. The gap to the robot ahead
 //! is the along-track distance from the world model (both robots on the tape), the straight-line
 //! distance to a robot in front that is off the tape, and the range of the robot ahead's IR frames
-//! as the front receiver reports them, whichever is least.
+//! as the front receiver reports them, whichever is least. A robot close behind one the world
+//! model finds lost backs away 5 cm, so that the lost robot's search has room to turn, and waits
+//! until it is found.
 //!
 //! Success: every robot's place on the tape advanced by the laps asked for, and its encoders
 //! measured at least 90 % of that distance (laps × loop length × 0.9; 5.2 m for the default three
@@ -12,16 +14,20 @@
 //! run at once (see [`crate::evidence`]).
 
 use std::collections::BTreeMap;
-use std::f64::consts::PI;
+use std::f64::consts::{FRAC_PI_2, PI};
 use std::time::Duration;
 
 use protocol::packets::Side;
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, LocalisationEvent, Verdict, WorldSnapshot};
+use crate::api::{
+    Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, RobotView, Verdict,
+    WorldSnapshot,
+};
 use crate::event::Event;
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::team::Team;
 use crate::track_loop::TrackLoop;
+use crate::MoveCommand;
 
 /// Body length: the along-track gap between two robots' sensors minus this is the free space.
 const BODY_M: f64 = world::robot::LENGTH_M;
@@ -33,6 +39,14 @@ const MIN_SPEED_MPS: f64 = 0.04;
 const IR_FRESH: Duration = Duration::from_millis(400);
 /// A robot off the tape counts as ahead within this half-angle of the heading.
 const AHEAD_CONE_RAD: f64 = 40.0 * PI / 180.0;
+/// A robot standing within this distance (centre to centre) behind one that is lost backs away
+/// by `BACK_OFF_M`: the lost robot's search turns on the spot, sweeping a circle of 29 mm plus
+/// its uncertainty, and may have to drive onto the tape where the follower stands.
+const BACK_OFF_NEAR_M: f64 = 0.15;
+const BACK_OFF_M: f32 = 0.05;
+const BACK_OFF_MPS: f32 = 0.03;
+/// Tag of the back-off move.
+const BACK_OFF_TAG: u32 = 1;
 
 #[derive(Clone, Debug, Default)]
 struct Follower {
@@ -107,18 +121,10 @@ impl LineFollow {
         };
         let mut gap = f64::INFINITY;
         for other in world.robots.iter().filter(|o| o.id != id) {
-            let d = match self.track.gap(me, other, true) {
-                Some(d) => d,
-                None => {
-                    let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
-                    let bearing = dy.atan2(dx) - me.pose.theta;
-                    if bearing.sin().atan2(bearing.cos()).abs() < AHEAD_CONE_RAD {
-                        dx.hypot(dy)
-                    } else {
-                        f64::INFINITY
-                    }
-                }
-            };
+            let d = self
+                .track
+                .gap(me, other, true)
+                .unwrap_or_else(|| in_front(me, other, AHEAD_CONE_RAD));
             gap = gap.min(d);
         }
         if let Some((at, range)) = self.followers.get(&id).and_then(|f| f.ir) {
@@ -127,6 +133,19 @@ impl LineFollow {
             }
         }
         gap
+    }
+
+    /// Whether a lost robot stands in front of robot `id` within the spacing: a follower waits
+    /// behind it until it is found, since its search may come its way.
+    fn behind_lost(&self, id: u16, world: &WorldSnapshot) -> bool {
+        let Some(me) = world.robot(id) else {
+            return false;
+        };
+        world
+            .robots
+            .iter()
+            .filter(|o| o.id != id && o.localisation == Localisation::Lost)
+            .any(|o| in_front(me, o, FRAC_PI_2) < self.spacing_m)
     }
 
     /// Ends the run as failed, with the laps and distances reached.
@@ -181,7 +200,9 @@ impl Behaviour for LineFollow {
             let target = {
                 let f = self.followers.get(&id).map(|f| (f.cruise, f.finished));
                 match f {
-                    Some((cruise, false)) => self.speed_for(cruise, gap),
+                    Some((cruise, false)) if team.idle(id) && !self.behind_lost(id, world) => {
+                        self.speed_for(cruise, gap)
+                    }
                     _ => 0.0,
                 }
             };
@@ -271,15 +292,57 @@ impl Behaviour for LineFollow {
         &mut self,
         robot: u16,
         event: &LocalisationEvent,
-        _world: &WorldSnapshot,
+        world: &WorldSnapshot,
         _: &mut Team,
     ) -> Vec<Intent> {
-        // A lost robot was stopped and its follow commands held; once found it is sent its
-        // speed again at the next snapshot.
-        if let (Some(f), LocalisationEvent::Found) = (self.followers.get_mut(&robot), event) {
-            f.sent = 0.0;
+        match event {
+            // A lost robot was stopped and its follow commands held; once found it is sent its
+            // speed again at the next snapshot.
+            LocalisationEvent::Found => {
+                if let Some(f) = self.followers.get_mut(&robot) {
+                    f.sent = 0.0;
+                }
+                Vec::new()
+            }
+            // Robots standing close behind it make room for its search (the safety check would
+            // hold a turn that sweeps into them, and they wait behind a lost robot).
+            LocalisationEvent::Lost { .. } => {
+                let Some(lost) = world.robot(robot) else {
+                    return Vec::new();
+                };
+                let mut out = Vec::new();
+                for (&id, f) in &mut self.followers {
+                    let Some(me) = world.robot(id).filter(|_| id != robot) else {
+                        continue;
+                    };
+                    if in_front(me, lost, FRAC_PI_2) < BACK_OFF_NEAR_M {
+                        f.sent = 0.0;
+                        out.push(Intent::Stop { robot: id });
+                        out.push(Intent::Move {
+                            robot: id,
+                            command: MoveCommand::Straight {
+                                distance_m: -BACK_OFF_M,
+                                speed_mps: BACK_OFF_MPS,
+                            },
+                            tag: BACK_OFF_TAG,
+                        });
+                    }
+                }
+                out
+            }
         }
-        Vec::new()
+    }
+}
+
+/// Straight-line distance from `me` to `other` if `other` lies within `half_angle` of `me`'s
+/// heading, else infinity.
+fn in_front(me: &RobotView, other: &RobotView, half_angle: f64) -> f64 {
+    let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
+    let bearing = dy.atan2(dx) - me.pose.theta;
+    if bearing.sin().atan2(bearing.cos()).abs() < half_angle {
+        dx.hypot(dy)
+    } else {
+        f64::INFINITY
     }
 }
 
@@ -332,6 +395,71 @@ mod tests {
             robot: 1,
             speed: None
         }));
+    }
+
+    /// Robot 2 is lost 8 cm ahead of robot 1, whose follow command had stopped it: robot 1 backs
+    /// away to make room for the search and stays stopped until robot 2 is found; then it
+    /// follows again.
+    #[test]
+    fn a_follower_backs_away_from_a_lost_robot_and_waits_until_it_is_found() {
+        let c = cfg(vec![1, 2]);
+        let track = Arc::clone(&c.track);
+        let mut h = Harness::new(LineFollow::new(&c).unwrap());
+        let snap = |lost: bool, x1: f64| {
+            let on = |x: f64| track.nearest(nalgebra::Point2::new(x, 0.15)).unwrap();
+            let (a, b) = (on(x1), on(0.38));
+            snapshot()
+                .arena(1.0, 0.6)
+                .robot(1, x1, 0.15, 0.0)
+                .robot(2, 0.38, 0.15, 0.0)
+                .on_track(1, a.edge, a.offset_m)
+                .on_track(2, b.edge, b.offset_m)
+                .with(2, |v| {
+                    if lost {
+                        v.localisation = Localisation::Lost;
+                    }
+                })
+                .build()
+        };
+        h.start(&snap(false, 0.30));
+        let lost = snap(true, 0.30);
+        let out = h.localise(2, LocalisationEvent::Lost { why: "test".into() }, &lost);
+        assert!(
+            out.iter().any(|i| matches!(
+                i,
+                Intent::Move {
+                    robot: 1,
+                    command: MoveCommand::Straight { distance_m, .. },
+                    ..
+                } if *distance_m < 0.0
+            )),
+            "{out:?}"
+        );
+        // Backed off: the gap alone would let it follow again, but robot 2 is still lost.
+        h.finish_move(1, BACK_OFF_TAG, &snap(true, 0.25));
+        let waiting = h.snapshot(&snap(true, 0.25));
+        assert!(
+            !waiting.iter().any(|i| matches!(
+                i,
+                Intent::FollowLine {
+                    robot: 1,
+                    speed: Some(_)
+                }
+            )),
+            "{waiting:?}"
+        );
+        h.localise(2, LocalisationEvent::Found, &snap(false, 0.25));
+        let going = h.snapshot(&snap(false, 0.25));
+        assert!(
+            going.iter().any(|i| matches!(
+                i,
+                Intent::FollowLine {
+                    robot: 1,
+                    speed: Some(_)
+                }
+            )),
+            "{going:?}"
+        );
     }
 
     #[test]
