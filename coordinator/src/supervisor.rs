@@ -17,7 +17,7 @@ use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateBatch, StateUpda
 use simulator::world::Track;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 
 use crate::relocalise::{Action, Relocaliser};
 use crate::safety::{self, Safety};
@@ -636,6 +636,10 @@ impl Supervisor {
 impl Handler<RobotEvent> for Supervisor {
     type Result = ();
     fn handle(&mut self, mut e: RobotEvent, ctx: &mut Context<Self>) {
+        // A finished move the supervisor has no number for (queued before a link was lost, or
+        // by a re-localisation that has ended) is nobody's news: under any tag it could stand
+        // for one of the behaviour's own moves.
+        let mut foreign = false;
         if let RobotEventKind::MoveFinished { tag, .. } = &mut e.kind {
             let number = *tag;
             let at = self.model.robots().get(&e.robot_id).map(|v| v.pose);
@@ -645,7 +649,10 @@ impl Handler<RobotEvent> for Supervisor {
                 }
             }
             // The behaviour hears of its move under its own tag.
-            *tag = self.move_tags.remove(&(e.robot_id, number)).unwrap_or(0);
+            match self.move_tags.remove(&(e.robot_id, number)) {
+                Some(behaviours_tag) => *tag = behaviours_tag,
+                None => foreign = true,
+            }
         }
         match &e.kind {
             RobotEventKind::Encounter(enc) => {
@@ -696,6 +703,10 @@ impl Handler<RobotEvent> for Supervisor {
                 RobotEventKind::QueueEmpty => return,
                 _ => {}
             }
+        }
+        if foreign {
+            debug!(robot = e.robot_id, ?e.kind, "a move the supervisor did not send ended");
+            return;
         }
         self.tell_behaviour(e, ctx);
     }
