@@ -544,12 +544,13 @@ async fn start_simulation(
     plan: &Plan,
     world: &World,
 ) -> Result<(runtime::SimHandle, Vec<Discovered>)> {
-    if plan.physics_every > 4 && !world.obstacles.is_empty() {
+    if plan.physics_every >= 4 && !world.obstacles.is_empty() {
         tracing::warn!(
             physics_hz = plan.physics_hz(),
-            "physics at 200 Hz: moves, turns and line following keep their accuracy, but contacts \
-             are resolved every 5 ms and two robots push the heavy box about 10 % less far than at \
-             1 kHz"
+            "physics below 500 Hz: moves, turns and line following keep their accuracy, but \
+             contacts are resolved every {} ms, and two robots push the heavy box about a fifth \
+             less far in the same time than at 1 kHz (250 Hz: 17 %, 200 Hz: 22 %)",
+            plan.physics_every
         );
     }
     let mut sim = Simulation::new(
