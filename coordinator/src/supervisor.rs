@@ -443,8 +443,11 @@ impl Supervisor {
                         command,
                         tag: RELOCALISATION_TAG,
                     };
+                    let number = self.next_move;
                     if !held.is_empty() || !self.carry_out_checked(intent, world) {
                         held.push(command);
+                    } else {
+                        self.disown_move(id, number);
                     }
                 }
                 if !held.is_empty() {
@@ -581,6 +584,12 @@ impl Supervisor {
         }
         true
     }
+
+    /// The move sent to `robot` under `number`, if one was, is not the behaviour's: its finish
+    /// keeps no tag, and the behaviour does not hear of it.
+    fn disown_move(&mut self, robot: u16, number: u32) {
+        self.move_tags.remove(&(robot, number));
+    }
 }
 
 impl Actor for Supervisor {
@@ -636,9 +645,9 @@ impl Supervisor {
 impl Handler<RobotEvent> for Supervisor {
     type Result = ();
     fn handle(&mut self, mut e: RobotEvent, ctx: &mut Context<Self>) {
-        // A finished move the supervisor has no number for (queued before a link was lost, or
-        // by a re-localisation that has ended) is nobody's news: under any tag it could stand
-        // for one of the behaviour's own moves.
+        // A finished move that is not the behaviour's (the panel's, the re-localisation's, or
+        // one queued before a link was lost) has no tag here and is not its news: under any tag
+        // it could stand for one of the behaviour's own moves.
         let mut foreign = false;
         if let RobotEventKind::MoveFinished { tag, .. } = &mut e.kind {
             let number = *tag;
@@ -772,7 +781,7 @@ impl Handler<Abort> for Supervisor {
 }
 
 /// A command from the control panel: checked by the safety check like a behaviour's intent, then
-/// sent; the error says why it was held.
+/// sent; the error says why it was held. The behaviour does not hear a panel move's finish.
 #[derive(Message)]
 #[rtype(result = "Result<(), String>")]
 pub struct PanelIntent(pub Intent);
@@ -781,7 +790,11 @@ impl Handler<PanelIntent> for Supervisor {
     type Result = Result<(), String>;
     fn handle(&mut self, msg: PanelIntent, _: &mut Context<Self>) -> Self::Result {
         let world = self.snapshot_peek();
-        if self.carry_out(msg.0, &world) {
+        let intent = msg.0;
+        let id = intent.robot();
+        let number = self.next_move;
+        if self.carry_out(intent, &world) {
+            self.disown_move(id, number);
             Ok(())
         } else {
             Err(self.held.last().map(|h| h.2.clone()).unwrap_or_default())
