@@ -162,6 +162,16 @@ impl RobotView {
     pub fn resting(&self) -> bool {
         self.state.wheels.left_mps == 0.0 && self.state.wheels.right_mps == 0.0
     }
+
+    /// How far `other` is off this robot's heading (radians, 0 to π) and how far away it is
+    /// (centre to centre, metres).
+    pub fn bearing_to(&self, other: &RobotView) -> (f64, f64) {
+        let (dx, dy) = (other.pose.x - self.pose.x, other.pose.y - self.pose.y);
+        (
+            world::wrap_angle(dy.atan2(dx) - self.pose.theta).abs(),
+            dx.hypot(dy),
+        )
+    }
 }
 
 impl WorldSnapshot {

@@ -1,6 +1,8 @@
 //! What a behaviour hears from a robot, typed: the robot actor's events with the wire codes
 //! turned into names ([`Side`], [`MoveOutcome`]) and the fields a behaviour needs.
 
+use std::time::Duration;
+
 use protocol::packets::{MoveOutcome, NackReason, Side};
 use robot_actor::RobotEventKind;
 
@@ -33,6 +35,35 @@ pub struct Sighting {
     pub range_mm: u16,
     /// The message word it carries (0: none; see `Intent::IrMessage`).
     pub message: u16,
+}
+
+/// The latest robot a front receiver identified: when, and the reach of the weakest power that
+/// got through, an upper bound on the distance from the receiver to that robot's LED.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrontSighting {
+    at: Duration,
+    reach_m: f64,
+}
+
+impl FrontSighting {
+    /// `s` heard at `at`, if the front receiver saw it.
+    pub fn of(s: &Sighting, at: Duration) -> Option<Self> {
+        (s.side == Side::Front).then(|| Self {
+            at,
+            reach_m: f64::from(s.range_mm) * 1e-3,
+        })
+    }
+
+    /// The most the gap to the robot in front can be at `now`, sensor to sensor (the reach plus
+    /// a robot's length), while the sighting is younger than `fresh`; infinite after that. A
+    /// robot in view is reported again every report period, one out of view is not.
+    pub fn gap_bound(&self, now: Duration, fresh: Duration) -> f64 {
+        if now.saturating_sub(self.at) < fresh {
+            self.reach_m + world::robot::LENGTH_M
+        } else {
+            f64::INFINITY
+        }
+    }
 }
 
 /// One robot's event, as a behaviour hears it.

@@ -23,14 +23,12 @@ use crate::api::{
     Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, RobotView, Verdict,
     WorldSnapshot,
 };
-use crate::event::Event;
+use crate::event::{Event, FrontSighting};
 use crate::evidence::{Odometer, EVIDENCE_SHARE};
 use crate::team::Team;
 use crate::track_loop::TrackLoop;
 use crate::MoveCommand;
 
-/// Body length: the along-track gap between two robots' sensors minus this is the free space.
-const BODY_M: f64 = world::robot::LENGTH_M;
 /// A robot ahead closer than this (sensor to sensor) stops the follower.
 const STOP_GAP_M: f64 = 0.09;
 /// Slowest commanded speed: below it the wheels' dead band makes following erratic.
@@ -58,8 +56,8 @@ struct Follower {
     last_s: Option<f64>,
     /// Metres driven along the loop.
     progress_m: f64,
-    /// Latest front IR sighting of another robot: (when, range).
-    ir: Option<(Duration, f64)>,
+    /// Latest front IR sighting of another robot.
+    ir: Option<FrontSighting>,
     line_losses: u32,
     finished: bool,
 }
@@ -127,10 +125,8 @@ impl LineFollow {
                 .unwrap_or_else(|| in_front(me, other, AHEAD_CONE_RAD));
             gap = gap.min(d);
         }
-        if let Some((at, range)) = self.followers.get(&id).and_then(|f| f.ir) {
-            if world.time.saturating_sub(at) < IR_FRESH {
-                gap = gap.min(range + BODY_M);
-            }
+        if let Some(seen) = self.followers.get(&id).and_then(|f| f.ir) {
+            gap = gap.min(seen.gap_bound(world.time, IR_FRESH));
         }
         gap
     }
@@ -277,7 +273,7 @@ impl Behaviour for LineFollow {
         match event {
             // Front receiver only: a robot behind is not in the way.
             Event::Sighting(seen) if seen.side == Side::Front => {
-                f.ir = Some((world.time, f64::from(seen.range_mm) * 1e-3));
+                f.ir = FrontSighting::of(seen, world.time);
             }
             Event::LineLost => f.line_losses += 1,
             // A robot whose link is lost has stopped (its watchdog) and one back has not
@@ -337,12 +333,9 @@ impl Behaviour for LineFollow {
 /// Straight-line distance from `me` to `other` if `other` lies within `half_angle` of `me`'s
 /// heading, else infinity.
 fn in_front(me: &RobotView, other: &RobotView, half_angle: f64) -> f64 {
-    let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
-    let bearing = dy.atan2(dx) - me.pose.theta;
-    if bearing.sin().atan2(bearing.cos()).abs() < half_angle {
-        dx.hypot(dy)
-    } else {
-        f64::INFINITY
+    match me.bearing_to(other) {
+        (off, distance) if off < half_angle => distance,
+        _ => f64::INFINITY,
     }
 }
 

@@ -20,7 +20,7 @@ use std::time::Duration;
 use protocol::packets::Side;
 
 use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
-use crate::event::Event;
+use crate::event::{Event, FrontSighting};
 use crate::evidence::Odometer;
 use crate::moves::{Leg, Legs};
 use crate::team::Team;
@@ -80,9 +80,8 @@ struct Bot {
     /// Since when the robot's wheels have read zero speed, if they do.
     still_since: Option<Duration>,
     started: bool,
-    /// The last robot its front receiver identified: when, and the reach of the weakest power
-    /// that got through (an upper bound on the distance between them).
-    front_sighting: Option<(Duration, f64)>,
+    /// The last robot its front receiver identified.
+    front_sighting: Option<FrontSighting>,
 }
 
 /// The token ring behaviour.
@@ -163,10 +162,7 @@ impl TokenRing {
                 .unwrap_or(f64::INFINITY);
             // Off the tape (detouring) or close by, a robot in front counts by straight-line
             // distance: anywhere in the front half within `NEAR`, within the cone farther out.
-            let (dx, dy) = (other.pose.x - me.pose.x, other.pose.y - me.pose.y);
-            let bearing = dy.atan2(dx) - me.pose.theta;
-            let off = bearing.sin().atan2(bearing.cos()).abs();
-            let straight = dx.hypot(dy);
+            let (off, straight) = me.bearing_to(other);
             let d = if (off < FRAC_PI_2 && straight < NEAR) || off < AHEAD_CONE {
                 d.min(straight)
             } else {
@@ -182,17 +178,14 @@ impl TokenRing {
         best
     }
 
-    /// The most a fresh front sighting lets the gap to the robot in front be, sensor to sensor:
-    /// the sighting's reach (our front receiver to its LED) plus a robot's length. A follower
-    /// whose model is off along the tape (odometry cannot see a shove along it, and the line
-    /// sensor cannot either) still stops short of the robot its receiver sees.
+    /// The most a fresh front sighting lets the gap to the robot in front be, sensor to sensor. A
+    /// follower whose model is off along the tape (odometry cannot see a shove along it, and the
+    /// line sensor cannot either) still stops short of the robot its receiver sees.
     fn sighted_gap(&self, id: u16, now: Duration) -> f64 {
-        match self.bots.get(&id).and_then(|b| b.front_sighting) {
-            Some((at, reach)) if now.saturating_sub(at) <= SIGHTING_FRESH => {
-                reach + world::robot::LENGTH_M
-            }
-            _ => f64::INFINITY,
-        }
+        self.bots
+            .get(&id)
+            .and_then(|b| b.front_sighting)
+            .map_or(f64::INFINITY, |s| s.gap_bound(now, SIGHTING_FRESH))
     }
 
     /// Whether a body the world model knows (another robot, an arena wall) can account for a
@@ -512,11 +505,9 @@ impl Behaviour for TokenRing {
         world: &WorldSnapshot,
         team: &mut Team,
     ) -> Vec<Intent> {
-        if let Event::Sighting(e) = event {
-            if e.side == Side::Front {
-                if let Some(b) = self.bots.get_mut(&robot) {
-                    b.front_sighting = Some((world.time, f64::from(e.range_mm) / 1000.0));
-                }
+        if let (Event::Sighting(e), Some(b)) = (event, self.bots.get_mut(&robot)) {
+            if let Some(front) = FrontSighting::of(e, world.time) {
+                b.front_sighting = Some(front);
             }
         }
         match event {
