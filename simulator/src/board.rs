@@ -13,14 +13,14 @@ use nalgebra::Point2;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::world::Track;
+use crate::world::{Surface, Track};
 
 /// Where the line and colour sensors are, so the board can look at the floor when the firmware
 /// actually samples (500 Hz line, 200 Hz colour) rather than on every physics step.
 #[derive(Clone, Debug)]
 pub struct FloorView {
-    /// The floor.
-    pub track: Arc<Track>,
+    /// The floor; private, as the looks below hold for this floor only.
+    track: Arc<Track>,
     /// Line sensor centre, metres.
     pub sensor: [f64; 2],
     /// Sine and cosine of the heading.
@@ -29,7 +29,61 @@ pub struct FloorView {
     pub spot_pitch_m: f64,
     /// Colour channel counts for a reflectance of 1.
     pub colour_scale: f32,
+    /// What each spot (and, last, the colour sensor) saw where it last looked, and how far from
+    /// there the floor is known to look the same.
+    looks: [Look; 9],
 }
+
+/// One sensor's last look at the floor.
+#[derive(Clone, Copy, Debug)]
+struct Look {
+    at: Point2<f64>,
+    surface: Surface,
+    /// Square of the radius around `at` with the same floor; 0 before the first look.
+    radius2: f64,
+}
+
+impl FloorView {
+    /// The floor `track` seen by a line sensor centred at `sensor` with its heading's (sin, cos).
+    pub fn new(
+        track: Arc<Track>,
+        sensor: [f64; 2],
+        sin_cos: (f64, f64),
+        spot_pitch_m: f64,
+        colour_scale: f32,
+    ) -> Self {
+        let unseen = Look {
+            at: Point2::origin(),
+            surface: Surface::WHITE,
+            radius2: 0.0,
+        };
+        Self {
+            track,
+            sensor,
+            sin_cos,
+            spot_pitch_m,
+            colour_scale,
+            looks: [unseen; 9],
+        }
+    }
+
+    /// The floor at `p` for sensor `k`: what it saw last time if `p` is within that look's
+    /// radius (the same answer, without the geometry), else a fresh look.
+    fn floor_at(&mut self, k: usize, p: Point2<f64>) -> Surface {
+        let look = &mut self.looks[k];
+        if (p - look.at).norm_squared() < look.radius2 {
+            return look.surface;
+        }
+        let (surface, radius) = self.track.floor_at_within(p);
+        *look = Look {
+            at: p,
+            surface,
+            radius2: radius * radius,
+        };
+        surface
+    }
+}
+
 /// Inputs from the world, outputs to it, and the board's own storage.
 #[derive(Clone, Debug)]
 pub struct SimBoard {
@@ -117,15 +171,13 @@ impl SimBoard {
             return;
         }
         self.fresh.0 = true;
-        let Some(f) = &self.floor else { return };
+        let Some(f) = &mut self.floor else { return };
         let (s, c) = f.sin_cos;
-        let points: [Point2<f64>; 8] = std::array::from_fn(|k| {
+        for (k, spot) in self.spots.iter_mut().enumerate() {
             let lateral = (k as f64 - 3.5) * f.spot_pitch_m;
             // The sensor's rightward axis is (sin θ, −cos θ).
-            Point2::new(f.sensor[0] + lateral * s, f.sensor[1] - lateral * c)
-        });
-        for (spot, surface) in self.spots.iter_mut().zip(f.track.floor_at_each(&points)) {
-            *spot = surface.ir_reflectance;
+            let p = Point2::new(f.sensor[0] + lateral * s, f.sensor[1] - lateral * c);
+            *spot = f.floor_at(k, p).ir_reflectance;
         }
     }
 
@@ -134,8 +186,8 @@ impl SimBoard {
             return;
         }
         self.fresh.1 = true;
-        let Some(f) = &self.floor else { return };
-        let rgb = f.track.floor_at(Point2::new(f.sensor[0], f.sensor[1])).rgb;
+        let Some(f) = &mut self.floor else { return };
+        let rgb = f.floor_at(8, Point2::new(f.sensor[0], f.sensor[1])).rgb;
         let ch = |v: f32| (v * f.colour_scale).clamp(0.0, 65535.0) as u16;
         let (r, g, b) = (ch(rgb[0]), ch(rgb[1]), ch(rgb[2]));
         self.colour = [

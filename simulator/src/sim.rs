@@ -437,13 +437,13 @@ impl Simulation {
             board.noise = world.light.noise as f32;
             board.line_gain = spec.line_gain as f32;
             board.ambient_gain = spec.ambient_gain as f32;
-            board.floor = Some(FloorView {
-                track: Arc::clone(&track),
-                sensor: [start.position.x, start.position.y],
-                sin_cos: start.heading_rad.sin_cos(),
-                spot_pitch_m: spec.spot_pitch_m,
+            board.floor = Some(FloorView::new(
+                Arc::clone(&track),
+                [start.position.x, start.position.y],
+                start.heading_rad.sin_cos(),
+                spec.spot_pitch_m,
                 colour_scale,
-            });
+            ));
             robots.push(SimRobot {
                 id: start.id,
                 firmware: Firmware::new(board),

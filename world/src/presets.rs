@@ -281,6 +281,7 @@ mod tests {
     use crate::graph::{NodeKind, TrackGraph};
     use crate::track::Surface;
     use crate::{robot, GRAVITY_MPS2};
+    use nalgebra::Vector2;
 
     fn load(name: &str) -> World {
         let text = preset_text(name).expect("known preset");
@@ -525,6 +526,50 @@ mod tests {
             assert!(
                 dark > 1000,
                 "the sample must cross tapes: {dark} dark spots"
+            );
+        }
+    }
+
+    #[test]
+    fn the_floor_is_the_same_everywhere_within_the_radius_a_query_gives() {
+        // Points all over curves, crossings, marks and the grid's edges, and off the tape's box;
+        // for each, points near the radius's rim in many directions.
+        for w in [
+            preset("junction").unwrap(),
+            preset("oval").unwrap(),
+            grid(0, 0, 10),
+        ] {
+            let (mut checked, mut near_tape, mut reach) = (0usize, 0usize, 0.0);
+            for i in 0..20_000u32 {
+                let x = f64::from(i % 173) / 173.0 * w.arena.width_m * 1.1 - 0.02;
+                let y = f64::from(i % 211) / 211.0 * w.arena.height_m * 1.1 - 0.02;
+                let p = Point2::new(x, y);
+                let (surface, radius) = w.track.floor_at_within(p);
+                assert_eq!(surface, w.track.floor_at(p));
+                assert!(radius >= 0.0, "{radius} at {p:?}");
+                if let Some(np) = w.track.nearest(p) {
+                    if np.distance_m < 0.01 {
+                        near_tape += 1;
+                        reach += radius;
+                    }
+                }
+                for k in 0..16 {
+                    let (s, c) = (f64::from(k) * 0.39 + f64::from(i)).sin_cos();
+                    for f in [0.999, 0.5] {
+                        let q = p + Vector2::new(c, s) * radius * f;
+                        assert_eq!(w.track.floor_at(q), surface, "{q:?}: {p:?} ± {radius}");
+                        checked += 1;
+                    }
+                }
+            }
+            assert!(checked > 100_000);
+            // Within a centimetre of a tape, where a line sensor's spots are, a look still
+            // holds for a millimetre on average: several of the spots' 0.3 mm moves between
+            // samples at a line follower's speed.
+            assert!(
+                reach / near_tape as f64 > 0.001,
+                "{near_tape} near the tape, mean radius {} m",
+                reach / near_tape as f64
             );
         }
     }

@@ -341,6 +341,28 @@ impl Shape {
         }
     }
 
+    /// A radius around `p` within which [`covers`](Self::covers) keeps its answer: how far the
+    /// distance to the centre line is from `half_width`, at most (the distance moves no faster
+    /// than the point, so it cannot cross `half_width` sooner). Never more than the true margin.
+    fn cover_margin(&self, p: Point2<f64>, half_width: f64) -> f64 {
+        match *self {
+            Shape::Line { start, dir, length } => {
+                let w = p - start;
+                let s = w.dot(&dir).clamp(0.0, length);
+                ((w - dir * s).norm() - half_width).abs()
+            }
+            Shape::Arc { centre, radius, .. } => {
+                // The whole circle is at least as near as the arc, so off its ring the arc is
+                // farther still and no angle needs working out.
+                let ring = ((p - centre).norm() - radius).abs();
+                if ring > half_width {
+                    return ring - half_width;
+                }
+                (self.closest(p).1 - half_width).abs()
+            }
+        }
+    }
+
     /// `n + 1` points splitting the edge into `n` equal pieces.
     fn samples(&self, n: usize) -> impl Iterator<Item = Point2<f64>> + '_ {
         let length = self.length();
@@ -564,6 +586,29 @@ impl GridIndex {
         Some(fy as usize * self.cols + fx as usize)
     }
 
+    /// Distance from `p` to the nearest side of cell `i`, which holds it.
+    fn inside_margin(&self, i: usize, p: Point2<f64>) -> f64 {
+        let (col, row) = (i % self.cols, i / self.cols);
+        let x0 = self.origin.x + col as f64 * self.cell;
+        let y0 = self.origin.y + row as f64 * self.cell;
+        (p.x - x0)
+            .min(x0 + self.cell - p.x)
+            .min(p.y - y0)
+            .min(y0 + self.cell - p.y)
+    }
+
+    /// Distance from `p`, off the grid, to the grid (0 for NaN).
+    fn outside_margin(&self, p: Point2<f64>) -> f64 {
+        let min = self.origin;
+        let max = min + Vector2::new(self.cols as f64, self.rows as f64) * self.cell;
+        let d = (p - p.sup(&min).inf(&max)).norm();
+        if d.is_nan() {
+            0.0
+        } else {
+            d
+        }
+    }
+
     /// The tapes reaching into cell `i` (empty for a cell out of range).
     fn tapes_in(&self, i: usize) -> &[CellTape] {
         match (self.starts.get(i), self.starts.get(i + 1)) {
@@ -571,6 +616,12 @@ impl GridIndex {
             _ => &[],
         }
     }
+}
+
+/// A margin made safe against rounding: the distances it came from and the tests it stands for
+/// are each a few ulps of a coordinate off, far below a nanometre on any floor.
+fn shrink(margin: f64) -> f64 {
+    (margin - 1e-9).max(0.0)
 }
 
 /// The darkest of `tapes` covering `p` (white if none), counting the edges whose geometry it tested.
@@ -793,6 +844,26 @@ impl Track {
             *s = darkest_covering(tapes, *p, &mut cost);
         }
         out
+    }
+
+    /// [`floor_at`](Self::floor_at) and a radius around `p` within which every point has that
+    /// same floor, so a sensor that moved less than the radius since it last looked need not look
+    /// again. The radius is 0 where `p` is on a tape's border or nothing can be said.
+    pub fn floor_at_within(&self, p: Point2<f64>) -> (Surface, f64) {
+        let Some(cell) = self.index.cell_of(p) else {
+            // Off the grid every point is white, as far as the grid.
+            return (Surface::WHITE, shrink(self.index.outside_margin(p)));
+        };
+        let tapes = self.index.tapes_in(cell);
+        // Within the cell every point sees the same tapes; within each tape's margin each tape
+        // covers it or not as it does `p`, so the darkest covering one is the same too.
+        let margin = tapes
+            .iter()
+            .fold(self.index.inside_margin(cell, p), |m, t| {
+                m.min(t.shape.cover_margin(p, t.half_width_m))
+            });
+        let surface = darkest_covering(tapes, p, &mut QueryCost::default());
+        (surface, shrink(margin))
     }
 
     /// Nearest point of any edge's centre line to `p`; `None` for a track without edges. Where
