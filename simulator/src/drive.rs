@@ -16,6 +16,10 @@ pub struct WheelState {
     pub angle: f64,
     /// Current through the motor last step, amperes (signed).
     pub current_a: f64,
+    /// Two neighbouring encoder edge angles around `angle`, as [`advance`](Self::advance)
+    /// works them out: a step that stays between them crosses no edge, which is most steps.
+    /// (0, 0) until known.
+    between: (f64, f64),
 }
 
 impl WheelState {
@@ -65,13 +69,19 @@ impl WheelState {
         if end == start {
             return;
         }
-        let pair = 2.0 * std::f64::consts::TAU / f64::from(spec.encoder_edges_per_rev.max(2));
-        let black = pair * spec.encoder_black_fraction.clamp(0.05, 0.95);
         let (lo, hi) = if end > start {
             (start, end)
         } else {
             (end, start)
         };
+        // No edge lies strictly between two neighbouring ones.
+        if self.between.0 <= lo && hi < self.between.1 {
+            return;
+        }
+        let pair = 2.0 * std::f64::consts::TAU / f64::from(spec.encoder_edges_per_rev.max(2));
+        let black = pair * spec.encoder_black_fraction.clamp(0.05, 0.95);
+        // Edges sit at k·pair and k·pair + black for every whole k; those of a k below lo's are
+        // below lo, since black is at most 0.95 of a pair.
         let mut k = (lo / pair).floor();
         while k * pair <= hi {
             for pos in [k * pair, k * pair + black] {
@@ -81,6 +91,19 @@ impl WheelState {
             }
             k += 1.0;
         }
+        // The edges around the new angle, computed as the loop above computes them.
+        let k = (end / pair).floor();
+        let around = [
+            (k - 1.0) * pair + black,
+            k * pair,
+            k * pair + black,
+            (k + 1.0) * pair,
+            (k + 1.0) * pair + black,
+        ];
+        self.between = around
+            .windows(2)
+            .find(|w| w[0] <= end && end < w[1])
+            .map_or((0.0, 0.0), |w| (w[0], w[1]));
     }
 }
 
@@ -159,6 +182,39 @@ mod tests {
             t += 1;
         }
         assert!((10..40).contains(&t), "{t} ms");
+    }
+
+    #[test]
+    fn a_wheel_going_back_and_forth_reports_every_edge_it_crosses_and_no_other() {
+        // Every edge between the start and end angle of each step, found by listing all edges of
+        // the turns the walk covers.
+        let spec = RobotSpec::default();
+        let pair = 2.0 * std::f64::consts::TAU / f64::from(spec.encoder_edges_per_rev);
+        let black = pair * spec.encoder_black_fraction;
+        let mut w = WheelState::default();
+        let (mut reported, mut expected) = (0usize, 0usize);
+        for i in 0..20_000u32 {
+            // Speeds that wander across zero, with steps that end on an edge now and then.
+            let o = w.omega;
+            w.omega = 30.0 * (f64::from(i) * 0.0031).sin() + 3.0 * (f64::from(i) * 0.7).cos();
+            let before = w.angle;
+            let mut fracs = Vec::new();
+            w.advance(&spec, o, 1e-3, |f| fracs.push(f));
+            let (lo, hi) = (before.min(w.angle), before.max(w.angle));
+            let crossed = (-400..400)
+                .flat_map(|k| [f64::from(k) * pair, f64::from(k) * pair + black])
+                .filter(|&e| e > lo && e <= hi)
+                .count();
+            assert_eq!(fracs.len(), crossed, "step {i}: {before} -> {}", w.angle);
+            assert!(fracs.iter().all(|f| (0.0..=1.0).contains(f)));
+            reported += fracs.len();
+            expected += crossed;
+        }
+        assert_eq!(reported, expected);
+        assert!(
+            reported > 1000,
+            "the walk must cross many edges: {reported}"
+        );
     }
 
     #[test]

@@ -224,6 +224,9 @@ enum Shape {
         start_angle: f64,
         /// Signed sweep in radians, positive = counter-clockwise.
         sweep: f64,
+        /// Start and end points, as [`point_at`](Shape::point_at) gives them: the floor's tests
+        /// need the arc's angular range without an arctangent per query.
+        ends: [Point2<f64>; 2],
     },
 }
 
@@ -246,12 +249,18 @@ impl Shape {
         // mirrors both.
         let centre = nalgebra::center(&a, &b) + left * (c / 2.0 / (sweep / 2.0).tan());
         let v = a - centre;
-        Shape::Arc {
+        let mut arc = Shape::Arc {
             centre,
             radius,
             start_angle: v.y.atan2(v.x),
             sweep,
+            ends: [a, b],
+        };
+        let ends = [arc.point_at(0.0).0, arc.point_at(arc.length()).0];
+        if let Shape::Arc { ends: e, .. } = &mut arc {
+            *e = ends;
         }
+        arc
     }
 
     fn length(&self) -> f64 {
@@ -270,6 +279,7 @@ impl Shape {
                 radius,
                 start_angle,
                 sweep,
+                ..
             } => {
                 let sign = sweep.signum();
                 let phi = start_angle + sign * s / radius;
@@ -295,6 +305,7 @@ impl Shape {
                 radius,
                 start_angle,
                 sweep,
+                ..
             } => {
                 let v = p - centre;
                 let r = v.norm();
@@ -336,7 +347,7 @@ impl Shape {
                 if ((p - centre).norm() - radius).abs() > half_width {
                     return false;
                 }
-                self.closest(p).1 <= half_width
+                self.distance(p) <= half_width
             }
         }
     }
@@ -358,7 +369,42 @@ impl Shape {
                 if ring > half_width {
                     return ring - half_width;
                 }
-                (self.closest(p).1 - half_width).abs()
+                (self.distance(p) - half_width).abs()
+            }
+        }
+    }
+
+    /// Distance from `p` to the centre line, as [`closest`](Self::closest) gives it, without the
+    /// arc length and so without an arctangent: whether `p` lies in an arc's angular range is a
+    /// matter of which side of its end radii it is on.
+    fn distance(&self, p: Point2<f64>) -> f64 {
+        match *self {
+            Shape::Line { .. } => self.closest(p).1,
+            Shape::Arc {
+                centre,
+                radius,
+                sweep,
+                ends: [a, b],
+                ..
+            } => {
+                let v = p - centre;
+                let r = v.norm();
+                // Counter-clockwise from the start radius, and clockwise from the end radius,
+                // in the arc's own sense of turning.
+                let sign = sweep.signum();
+                let (ua, ub) = (a - centre, b - centre);
+                let after_start = (ua.x * v.y - ua.y * v.x) * sign >= 0.0;
+                let before_end = (v.x * ub.y - v.y * ub.x) * sign >= 0.0;
+                let within = if sweep.abs() <= PI {
+                    after_start && before_end
+                } else {
+                    after_start || before_end
+                };
+                if r > 0.0 && within {
+                    (r - radius).abs()
+                } else {
+                    (p - a).norm().min((p - b).norm())
+                }
             }
         }
     }
@@ -1117,6 +1163,26 @@ mod tests {
         let (_, tangent) = t.point_at(0, t.edge_length(0));
         assert!((tangent - Vector2::new(1.0, 0.0)).norm() < EPS);
         assert!((t.edge_length(0) - PI * 0.5).abs() < EPS);
+    }
+
+    #[test]
+    fn an_arcs_distance_without_its_angle_is_the_nearest_points_distance() {
+        for turn in [30.0, 90.0, 179.0, 181.0, 270.0, 350.0] {
+            for sign in [1.0, -1.0] {
+                let shape = Shape::new(p(0.1, 0.2), p(0.3, 0.25), sign * turn);
+                for i in 0..4000u32 {
+                    let q = p(
+                        f64::from(i % 61) / 61.0 * 0.8 - 0.2,
+                        f64::from(i % 67) / 67.0 * 0.8 - 0.2,
+                    );
+                    let (d, reference) = (shape.distance(q), shape.closest(q).1);
+                    assert!(
+                        (d - reference).abs() < 1e-12,
+                        "{turn}° at {q:?}: {d} vs {reference}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
