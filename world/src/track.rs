@@ -623,18 +623,23 @@ impl GridIndex {
 
     /// The index cell holding `p`; `None` off the grid.
     fn cell_of(&self, p: Point2<f64>) -> Option<usize> {
+        self.column_row_of(p)
+            .map(|(col, row)| row * self.cols + col)
+    }
+
+    /// Column and row of the index cell holding `p`; `None` off the grid.
+    fn column_row_of(&self, p: Point2<f64>) -> Option<(usize, usize)> {
         let fx = (p.x - self.origin.x) / self.cell;
         let fy = (p.y - self.origin.y) / self.cell;
         // Written so NaN also lands here: it fails every comparison.
         if !(fx >= 0.0 && fy >= 0.0 && fx < self.cols as f64 && fy < self.rows as f64) {
             return None;
         }
-        Some(fy as usize * self.cols + fx as usize)
+        Some((fx as usize, fy as usize))
     }
 
-    /// Distance from `p` to the nearest side of cell `i`, which holds it.
-    fn inside_margin(&self, i: usize, p: Point2<f64>) -> f64 {
-        let (col, row) = (i % self.cols, i / self.cols);
+    /// Distance from `p` to the nearest side of the cell at `col`, `row`, which holds it.
+    fn inside_margin(&self, (col, row): (usize, usize), p: Point2<f64>) -> f64 {
         let x0 = self.origin.x + col as f64 * self.cell;
         let y0 = self.origin.y + row as f64 * self.cell;
         (p.x - x0)
@@ -896,16 +901,16 @@ impl Track {
     /// same floor, so a sensor that moved less than the radius since it last looked need not look
     /// again. The radius is 0 where `p` is on a tape's border or nothing can be said.
     pub fn floor_at_within(&self, p: Point2<f64>) -> (Surface, f64) {
-        let Some(cell) = self.index.cell_of(p) else {
+        let Some((col, row)) = self.index.column_row_of(p) else {
             // Off the grid every point is white, as far as the grid.
             return (Surface::WHITE, shrink(self.index.outside_margin(p)));
         };
-        let tapes = self.index.tapes_in(cell);
+        let tapes = self.index.tapes_in(row * self.index.cols + col);
         // Within the cell every point sees the same tapes; within each tape's margin each tape
         // covers it or not as it does `p`, so the darkest covering one is the same too.
         let margin = tapes
             .iter()
-            .fold(self.index.inside_margin(cell, p), |m, t| {
+            .fold(self.index.inside_margin((col, row), p), |m, t| {
                 m.min(t.shape.cover_margin(p, t.half_width_m))
             });
         let surface = darkest_covering(tapes, p, &mut QueryCost::default());
