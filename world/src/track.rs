@@ -355,21 +355,28 @@ impl Shape {
     /// A radius around `p` within which [`covers`](Self::covers) keeps its answer: how far the
     /// distance to the centre line is from `half_width`, at most (the distance moves no faster
     /// than the point, so it cannot cross `half_width` sooner). Never more than the true margin.
-    fn cover_margin(&self, p: Point2<f64>, half_width: f64) -> f64 {
+    ///
+    /// Returned with [`covers`](Self::covers)'s answer, worked out from the same distance.
+    fn cover_margin(&self, p: Point2<f64>, half_width: f64) -> (bool, f64) {
         match *self {
             Shape::Line { start, dir, length } => {
                 let w = p - start;
                 let s = w.dot(&dir).clamp(0.0, length);
-                ((w - dir * s).norm() - half_width).abs()
+                let d2 = (w - dir * s).norm_squared();
+                (
+                    d2 <= half_width * half_width,
+                    (d2.sqrt() - half_width).abs(),
+                )
             }
             Shape::Arc { centre, radius, .. } => {
                 // The whole circle is at least as near as the arc, so off its ring the arc is
                 // farther still and no angle needs working out.
                 let ring = ((p - centre).norm() - radius).abs();
                 if ring > half_width {
-                    return ring - half_width;
+                    return (false, ring - half_width);
                 }
-                (self.distance(p) - half_width).abs()
+                let d = self.distance(p);
+                (d <= half_width, (d - half_width).abs())
             }
         }
     }
@@ -907,14 +914,18 @@ impl Track {
         };
         let tapes = self.index.tapes_in(row * self.index.cols + col);
         // Within the cell every point sees the same tapes; within each tape's margin each tape
-        // covers it or not as it does `p`, so the darkest covering one is the same too.
-        let margin = tapes
-            .iter()
-            .fold(self.index.inside_margin((col, row), p), |m, t| {
-                m.min(t.shape.cover_margin(p, t.half_width_m))
-            });
-        let surface = darkest_covering(tapes, p, &mut QueryCost::default());
-        (surface, shrink(margin))
+        // covers it or not as it does `p`, so the darkest covering one is the same too. Chosen
+        // as `darkest_covering` chooses, down to stopping at black.
+        let mut margin = self.index.inside_margin((col, row), p);
+        let mut best = Surface::WHITE;
+        for t in tapes {
+            let (covered, m) = t.shape.cover_margin(p, t.half_width_m);
+            margin = margin.min(m);
+            if covered && best != Surface::BLACK && t.surface.ir_reflectance < best.ir_reflectance {
+                best = t.surface;
+            }
+        }
+        (best, shrink(margin))
     }
 
     /// Nearest point of any edge's centre line to `p`; `None` for a track without edges. Where
