@@ -249,18 +249,16 @@ impl Shape {
         // mirrors both.
         let centre = nalgebra::center(&a, &b) + left * (c / 2.0 / (sweep / 2.0).tan());
         let v = a - centre;
-        let mut arc = Shape::Arc {
+        let arc = |ends| Shape::Arc {
             centre,
             radius,
             start_angle: v.y.atan2(v.x),
             sweep,
-            ends: [a, b],
+            ends,
         };
-        let ends = [arc.point_at(0.0).0, arc.point_at(arc.length()).0];
-        if let Shape::Arc { ends: e, .. } = &mut arc {
-            *e = ends;
-        }
-        arc
+        // The ends as the arc itself puts them, a few ulps from the nodes.
+        let draft = arc([a, b]);
+        arc([draft.point_at(0.0).0, draft.point_at(draft.length()).0])
     }
 
     fn length(&self) -> f64 {
