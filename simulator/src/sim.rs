@@ -889,15 +889,18 @@ impl Simulation {
             }
             r.watch_host(now_ns, heard, radius_m);
             // Edges reach the firmware as its capture interrupt would: once they have happened.
-            let mut edges = std::mem::take(&mut r.firmware.board_mut().edges);
-            edges.retain(|e| {
-                let happened = e.at <= edges_until;
-                if happened {
-                    r.firmware.on_encoder_edge(e.wheel, e.at);
-                }
-                !happened
-            });
-            r.firmware.board_mut().edges = edges;
+            // Most steps have none waiting.
+            if !r.firmware.board().edges.is_empty() {
+                let mut edges = std::mem::take(&mut r.firmware.board_mut().edges);
+                edges.retain(|e| {
+                    let happened = e.at <= edges_until;
+                    if happened {
+                        r.firmware.on_encoder_edge(e.wheel, e.at);
+                    }
+                    !happened
+                });
+                r.firmware.board_mut().edges = edges;
+            }
             if r.firmware.next_deadline().is_some_and(|d| d <= now) {
                 if interpolate {
                     r.place_floor_sensor(now_ns, span_start, span_end);
