@@ -87,6 +87,15 @@ const REACH_M: f64 = 0.03;
 /// fits them on `junction` (12 tasks, about 3.6 a minute with a slow tail) and `grid` (18, about
 /// 19 a minute) with a margin.
 pub const TASKS_PER_ROBOT: f64 = 1.5;
+/// A robot standing this near a lost one (centres), with the lost one ahead of it, backs away by
+/// `MAKE_ROOM_M` until the lost one is found: the search turns on the spot sweep a circle of 29 mm
+/// plus the lost robot's widened uncertainty, and the safety check holds every turn that could
+/// touch a robot waiting beside it.
+const MAKE_ROOM_NEAR_M: f64 = 0.15;
+const MAKE_ROOM_M: f32 = 0.08;
+const MAKE_ROOM_MPS: f32 = 0.03;
+/// Tag of the moves that make room and return.
+const MAKE_ROOM_TAG: u32 = 1;
 /// Search budget per plan; deterministic, unlike a time limit.
 const MAX_EXPANSIONS: u64 = 2_000_000;
 
@@ -162,6 +171,19 @@ struct Bot {
     rng: ChaCha8Rng,
     /// Has a task (false once its quota is done: it only keeps out of the way).
     active: bool,
+    /// Backed away from a lost robot, to return when it is found.
+    making_room: Option<MakeRoom>,
+}
+
+/// A robot keeping out of a lost one's way.
+#[derive(Clone, Copy, Debug)]
+struct MakeRoom {
+    /// The lost robot.
+    lost: u16,
+    /// Where the robot stood before it backed away.
+    from: Pose,
+    /// Driving back to `from`.
+    returning: bool,
 }
 
 /// The traffic control behaviour.
@@ -286,6 +308,7 @@ impl TrafficControl {
                 tail: None,
                 rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ (u64::from(id) << 32)),
                 active: true,
+                making_room: None,
             })
             .collect();
         let (target_tasks, quota) = match &scripted {
@@ -436,7 +459,7 @@ impl TrafficControl {
     /// Sends robot `k` the next segment of its leg. A leg whose end the robot already stands on
     /// needs no move: it is completed at the next step.
     fn drive(&mut self, k: usize, world: &WorldSnapshot) -> Vec<Intent> {
-        if self.bots[k].lost.is_some() {
+        if self.bots[k].lost.is_some() || self.bots[k].making_room.is_some() {
             return Vec::new();
         }
         let (Some(mut leg), Some(view)) = (self.bots[k].driving, world.robot(self.bots[k].id))
@@ -787,7 +810,11 @@ impl TrafficControl {
         }
         for k in 0..self.bots.len() {
             let b = &self.bots[k];
-            if b.driving.is_some() || !team.idle(b.id) || b.lost.is_some() {
+            if b.driving.is_some()
+                || !team.idle(b.id)
+                || b.lost.is_some()
+                || b.making_room.is_some()
+            {
                 continue;
             }
             let Some(action) = self.adg.as_ref().and_then(|a| a.ready(k)) else {
@@ -826,6 +853,8 @@ impl TrafficControl {
         for (k, b) in self.bots.iter().enumerate() {
             let line = if let Some(why) = &b.lost {
                 format!("robot {} is lost ({why})", b.id)
+            } else if let Some(m) = b.making_room {
+                format!("robot {} keeps out of lost robot {}'s way", b.id, m.lost)
             } else if let Some(leg) = b.driving {
                 let route = format!("{}->{}", self.name(self.leg_from(&leg)), self.name(leg.to));
                 if b.held_since.is_some() {
@@ -1070,17 +1099,17 @@ impl TrafficControl {
         if self.verdict.is_some() {
             return out;
         }
+        out.extend(self.make_room(world, team));
         for k in 0..self.bots.len() {
             let b = &self.bots[k];
-            if b.retry && team.idle(b.id) && b.lost.is_none() {
+            if b.retry && team.idle(b.id) && b.lost.is_none() && b.making_room.is_none() {
                 self.bots[k].retry = false;
                 out.extend(self.drive(k, world));
             }
         }
-        let all_still = self
-            .bots
-            .iter()
-            .all(|b| team.idle(b.id) && b.driving.is_none() && b.lost.is_none());
+        let all_still = self.bots.iter().all(|b| {
+            team.idle(b.id) && b.driving.is_none() && b.lost.is_none() && b.making_room.is_none()
+        });
         if self.phase == Phase::Placing && all_still {
             self.phase = Phase::Draining;
         }
@@ -1114,7 +1143,79 @@ impl TrafficControl {
             leg.last = false;
         }
         b.tail = None;
+        b.making_room = None;
         b.lost = Some(why);
+    }
+
+    /// Robots waiting just behind a lost one back away from it, and come back once it is found.
+    ///
+    /// Only a robot with no move under way is asked, and its leg (if any) is planned again from
+    /// where it stands when it is back; the safety check still judges every move.
+    fn make_room(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
+        for k in 0..self.bots.len() {
+            let id = self.bots[k].id;
+            if self.bots[k].lost.is_some() || !team.idle(id) {
+                continue;
+            }
+            let Some(me) = world.robot(id) else { continue };
+            if let Some(m) = self.bots[k].making_room {
+                let still_lost = self.bots.iter().any(|b| b.id == m.lost && b.lost.is_some());
+                if m.returning || still_lost {
+                    continue;
+                }
+                let back = Vector2::new(m.from.x - me.pose.x, m.from.y - me.pose.y).norm();
+                if back < 0.003 {
+                    self.bots[k].making_room = None;
+                    if self.bots[k].driving.is_some() {
+                        out.extend(self.drive(k, world));
+                    }
+                    continue;
+                }
+                self.bots[k].making_room = Some(MakeRoom {
+                    returning: true,
+                    ..m
+                });
+                out.push(Intent::Move {
+                    robot: id,
+                    command: MoveCommand::Straight {
+                        distance_m: back as f32,
+                        speed_mps: MAKE_ROOM_MPS,
+                    },
+                    tag: MAKE_ROOM_TAG,
+                });
+                continue;
+            }
+            let heading = Vector2::new(me.pose.theta.cos(), me.pose.theta.sin());
+            let lost_ahead = self.bots.iter().filter(|b| b.lost.is_some()).find_map(|b| {
+                let other = world.robot(b.id)?;
+                let to = Vector2::new(other.pose.x - me.pose.x, other.pose.y - me.pose.y);
+                (to.norm() < MAKE_ROOM_NEAR_M && to.dot(&heading) > 0.0).then_some(b.id)
+            });
+            let Some(lost) = lost_ahead else { continue };
+            let b = &mut self.bots[k];
+            tracing::debug!(robot = id, lost, "makes room for a lost robot");
+            b.making_room = Some(MakeRoom {
+                lost,
+                from: me.pose,
+                returning: false,
+            });
+            b.retry = false;
+            b.held_since = None;
+            b.tail = None;
+            if let Some(leg) = b.driving.as_mut() {
+                leg.last = false;
+            }
+            out.push(Intent::Move {
+                robot: id,
+                command: MoveCommand::Straight {
+                    distance_m: -MAKE_ROOM_M,
+                    speed_mps: MAKE_ROOM_MPS,
+                },
+                tag: MAKE_ROOM_TAG,
+            });
+        }
+        out
     }
 }
 
@@ -1145,6 +1246,18 @@ impl Behaviour for TrafficControl {
         match event {
             Event::MoveFinished { outcome, .. } => {
                 if self.bots[k].lost.is_some() {
+                    return Vec::new();
+                }
+                if let Some(m) = self.bots[k].making_room {
+                    // Backed away: it waits. Back where it stood (or stopped on the way): its
+                    // leg goes on from there.
+                    if m.returning && team.idle(robot) {
+                        self.bots[k].making_room = None;
+                        if self.bots[k].driving.is_some() {
+                            return self.drive(k, world);
+                        }
+                        return self.step(world, team, false);
+                    }
                     return Vec::new();
                 }
                 if *outcome != MoveOutcome::Completed {
@@ -1194,6 +1307,19 @@ impl Behaviour for TrafficControl {
         // the robot's pose at the next snapshot; held for `HOLD_LIMIT`, the team is replanned.
         if let Intent::Move { robot, .. } = intent {
             if let Some(bot) = self.bots.iter_mut().find(|b| b.id == *robot) {
+                // Held while backing away (something behind): it waits where it stands, and is
+                // not asked again. Held coming back (the found robot still near): its leg is
+                // planned from where it stands.
+                if let Some(m) = bot.making_room {
+                    if m.returning {
+                        bot.making_room = None;
+                        if bot.driving.is_some() {
+                            bot.retry = true;
+                        }
+                    }
+                    self.held += 1;
+                    return Vec::new();
+                }
                 // The segment did not reach the node even if earlier moves of it are driven.
                 if let Some(leg) = bot.driving.as_mut() {
                     leg.last = false;
@@ -1604,6 +1730,57 @@ mod tests {
             h.behaviour().bots[0].driving.unwrap().to,
             node(h.behaviour(), "C")
         );
+    }
+
+    #[test]
+    fn a_robot_waiting_behind_a_lost_one_backs_away_and_returns_when_it_is_found() {
+        let mut h = Harness::new(junction(&[2, 3]));
+        let at = |secs, x3| snapshot(secs, &[(2, 0.7, 0.15, 0.0), (3, x3, 0.15, 0.0)]);
+        let out = h.start(&at(0, 0.6));
+        // Robot 3's moves are held, too near robot 2: it stands idle 10 cm behind it.
+        let held: Vec<Intent> = out
+            .into_iter()
+            .filter(|i| matches!(i, Intent::Move { robot: 3, .. }))
+            .collect();
+        for i in held {
+            h.hold(i, "too near robot 2", &at(0, 0.6));
+        }
+        assert!(h.team().idle(3));
+        let lost = LocalisationEvent::Lost {
+            why: "tape where none is".into(),
+        };
+        h.localise(2, lost, &at(1, 0.6));
+        let backing = h.snapshot(&at(1, 0.6));
+        assert!(
+            backing.iter().any(|i| matches!(
+                i,
+                Intent::Move {
+                    robot: 3,
+                    command: MoveCommand::Straight { distance_m, .. },
+                    tag: MAKE_ROOM_TAG,
+                } if *distance_m < 0.0
+            )),
+            "{backing:?}"
+        );
+        // Backed away, it waits while robot 2 is lost.
+        assert!(h.finish_move(3, MAKE_ROOM_TAG, &at(2, 0.52)).is_empty());
+        assert_eq!(moves_for(&h.snapshot(&at(3, 0.52)), 3), 0);
+        // Robot 2 found: robot 3 drives back to where it stood, then on with its leg.
+        let back = h.localise(2, LocalisationEvent::Found, &at(4, 0.52));
+        assert!(
+            back.iter().any(|i| matches!(
+                i,
+                Intent::Move {
+                    robot: 3,
+                    command: MoveCommand::Straight { distance_m, .. },
+                    tag: MAKE_ROOM_TAG,
+                } if (*distance_m - 0.08).abs() < 1e-3
+            )),
+            "{back:?}"
+        );
+        let on = h.finish_move(3, MAKE_ROOM_TAG, &at(5, 0.6));
+        assert!(moves_for(&on, 3) > 0, "{on:?}");
+        assert!(h.behaviour().bots[1].making_room.is_none());
     }
 
     #[test]
