@@ -39,6 +39,7 @@
 //! end without its wheels turning has not driven them). A robot whose wheels are driven for 3 s
 //! without an encoder pulse fails the run at once (see [`crate::evidence`]).
 
+use std::f64::consts::FRAC_PI_2;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -1186,11 +1187,9 @@ impl TrafficControl {
                 });
                 continue;
             }
-            let heading = Vector2::new(me.pose.theta.cos(), me.pose.theta.sin());
             let lost_ahead = self.bots.iter().filter(|b| b.lost.is_some()).find_map(|b| {
-                let other = world.robot(b.id)?;
-                let to = Vector2::new(other.pose.x - me.pose.x, other.pose.y - me.pose.y);
-                (to.norm() < MAKE_ROOM_NEAR_M && to.dot(&heading) > 0.0).then_some(b.id)
+                let (off, distance) = me.bearing_to(world.robot(b.id)?);
+                (distance < MAKE_ROOM_NEAR_M && off < FRAC_PI_2).then_some(b.id)
             });
             let Some(lost) = lost_ahead else { continue };
             let b = &mut self.bots[k];
@@ -1746,36 +1745,30 @@ mod tests {
             h.hold(i, "too near robot 2", &at(0, 0.6));
         }
         assert!(h.team().idle(3));
+        // How far robot 3 is sent straight to make room or come back, if it is.
+        let room = |out: &[Intent]| {
+            out.iter().find_map(|i| match i {
+                Intent::Move {
+                    robot: 3,
+                    command: MoveCommand::Straight { distance_m, .. },
+                    tag: MAKE_ROOM_TAG,
+                } => Some(*distance_m),
+                _ => None,
+            })
+        };
         let lost = LocalisationEvent::Lost {
             why: "tape where none is".into(),
         };
         h.localise(2, lost, &at(1, 0.6));
         let backing = h.snapshot(&at(1, 0.6));
-        assert!(
-            backing.iter().any(|i| matches!(
-                i,
-                Intent::Move {
-                    robot: 3,
-                    command: MoveCommand::Straight { distance_m, .. },
-                    tag: MAKE_ROOM_TAG,
-                } if *distance_m < 0.0
-            )),
-            "{backing:?}"
-        );
+        assert!(room(&backing).is_some_and(|d| d < 0.0), "{backing:?}");
         // Backed away, it waits while robot 2 is lost.
         assert!(h.finish_move(3, MAKE_ROOM_TAG, &at(2, 0.52)).is_empty());
         assert_eq!(moves_for(&h.snapshot(&at(3, 0.52)), 3), 0);
         // Robot 2 found: robot 3 drives back to where it stood, then on with its leg.
         let back = h.localise(2, LocalisationEvent::Found, &at(4, 0.52));
         assert!(
-            back.iter().any(|i| matches!(
-                i,
-                Intent::Move {
-                    robot: 3,
-                    command: MoveCommand::Straight { distance_m, .. },
-                    tag: MAKE_ROOM_TAG,
-                } if (*distance_m - 0.08).abs() < 1e-3
-            )),
+            room(&back).is_some_and(|d| (d - 0.08).abs() < 1e-3),
             "{back:?}"
         );
         let on = h.finish_move(3, MAKE_ROOM_TAG, &at(5, 0.6));
