@@ -74,6 +74,14 @@ const START_SIGMA_RAD: f64 = 0.0175;
 const CONTRADICTION_M: f64 = 0.025;
 /// And this long standing still: a robot knocked off the tape at rest never drives the distance.
 const CONTRADICTION_AT_REST: std::time::Duration = std::time::Duration::from_millis(500);
+/// A robot standing still whose line reading moves this far from what it read when it stopped,
+/// in this many updates running, was moved without its wheels turning (knocked, pushed, picked up
+/// and put down). The reading's own noise is a few micrometres.
+const DISPLACED_AT_REST_UM: i32 = 2000;
+const DISPLACED_READS: u32 = 3;
+/// The most heading uncertainty such a move gives the robot: a turn of this much puts the sensor
+/// 8 mm across, past where a single reading at rest says anything.
+const DISPLACED_TURN_MAX_RAD: f64 = 30.0 * PI / 180.0;
 /// From the line sensor's centre to its outermost spots, and how far over a tape's edge a spot
 /// must be to see it for certain.
 const SPOTS_REACH_M: f64 = 3.5 * world::robot::LINE_SPOT_PITCH_M;
@@ -167,6 +175,10 @@ struct Estimate {
     stray_tape_m: f64,
     /// Whether the line sensor saw tape at the previous update.
     saw_tape: bool,
+    /// The line reading when the robot came to rest on a tape, and how many updates running
+    /// have read it moved since.
+    rest_line: Option<i16>,
+    displaced_reads: u32,
     /// Whether the firmware followed a tape it saw at the previous update.
     was_following: bool,
     /// Set while the robot is lost.
@@ -192,6 +204,8 @@ impl Default for Estimate {
             last_at: None,
             stray_tape_m: 0.0,
             saw_tape: false,
+            rest_line: None,
+            displaced_reads: 0,
             was_following: false,
             lost: None,
             stats: LocalisationStats::default(),
@@ -537,6 +551,8 @@ impl WorldModel {
                 e.no_tape_m = 0.0;
                 e.no_tape_at_rest = std::time::Duration::ZERO;
                 e.stray_tape_m = 0.0;
+                e.rest_line = None;
+                e.displaced_reads = 0;
                 // The contradiction says the estimate is off by at least what the line sensor
                 // reaches either side; the safety check keeps everyone that much farther away.
                 let floor = LOST_FLOOR_M * LOST_FLOOR_M;
@@ -620,7 +636,24 @@ impl WorldModel {
         }
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let sensor = Point2::new(pose.x, pose.y) + heading * LINE_SENSOR_AHEAD_M;
+        if at_rest.is_none() {
+            e.rest_line = None;
+            e.displaced_reads = 0;
+        }
         if sees_tape {
+            if let Some(moved_m) = self.displaced_at_rest(e, sensor, position_um, at_rest) {
+                // Moved while standing, still on the tape: the sensor moved across the tape by
+                // `moved_m`, by a shift or a turn about the robot's centre, and only driving along
+                // the tape can tell the two apart again.
+                let floor = moved_m * moved_m;
+                for i in 0..2 {
+                    e.cov[(i, i)] = e.cov[(i, i)].max(floor);
+                }
+                let turn = (moved_m / LINE_SENSOR_AHEAD_M).min(DISPLACED_TURN_MAX_RAD);
+                e.cov[(2, 2)] = e.cov[(2, 2)].max(turn * turn);
+                e.rest_line = Some(position_um);
+                e.displaced_reads = 0;
+            }
             e.no_tape_m = 0.0;
             e.no_tape_at_rest = std::time::Duration::ZERO;
             let right = Vector2::new(heading.y, -heading.x);
@@ -705,6 +738,40 @@ impl WorldModel {
             }
         }
         None
+    }
+
+    /// Why a robot standing still on a tape was moved: its line reading moved while its wheels
+    /// did not. Such a kick can turn the robot or shift it across its tape by centimetres while
+    /// the sensor still sees the tape, and a sighting at rest is no evidence for the filter; the
+    /// robot then drives off on a heading the model does not have, and by the time its sensor
+    /// loses the tape it is far from where the model puts it. Junctions and tape ends are left
+    /// out: there a spot can see another tape's edge come and go.
+    fn displaced_at_rest(
+        &self,
+        e: &mut Estimate,
+        sensor: Point2<f64>,
+        position_um: i16,
+        at_rest: Option<std::time::Duration>,
+    ) -> Option<f64> {
+        at_rest?;
+        let clear = !self.in_junction(sensor)
+            && self
+                .track
+                .nearest(sensor)
+                .is_some_and(|n| self.clear_of_ends(&n, self.track.edge_length(n.edge)));
+        if !clear {
+            e.rest_line = None;
+            e.displaced_reads = 0;
+            return None;
+        }
+        let first = *e.rest_line.get_or_insert(position_um);
+        let moved_um = (i32::from(position_um) - i32::from(first)).abs();
+        if moved_um <= DISPLACED_AT_REST_UM {
+            e.displaced_reads = 0;
+            return None;
+        }
+        e.displaced_reads += 1;
+        (e.displaced_reads >= DISPLACED_READS).then(|| f64::from(moved_um) * 1e-6)
     }
 
     /// The tape nearest the line sensor at `sensor`, when the robot faces along it (facing
@@ -1444,6 +1511,42 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert_eq!(d.view().localisation, Localisation::Lost);
+    }
+
+    /// A robot turned where it stands, its sensor still on the tape, is not lost, but the model
+    /// no longer claims to know its heading; driving on along the tape then measures it again,
+    /// which a model still sure of the old heading would not let the sightings do.
+    #[test]
+    fn a_robot_turned_where_it_stands_is_uncertain_of_its_heading_until_it_drives() {
+        let mut d = on_the_tape_at_x(0.27, false);
+        for _ in 0..50 {
+            d.report();
+        }
+        let calm = d.view().uncertainty.heading_rad;
+        assert!(calm < 3f64.to_radians(), "{calm}");
+        d.truth.theta -= 12f64.to_radians();
+        for _ in 0..10 {
+            d.report();
+        }
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
+        let kicked = d.view().uncertainty.heading_rad;
+        assert!(
+            kicked > 10f64.to_radians(),
+            "heading 1σ {:.1}° after a 12° turn at rest",
+            kicked.to_degrees()
+        );
+        // On along the tape as the odometry has it: the true path drifts across the tape.
+        for _ in 0..40 {
+            d.go(0.002, 0.0, 0.0, 0.0);
+        }
+        let v = d.view();
+        let err = wrap_angle(v.pose.theta - d.truth.theta).abs();
+        assert!(
+            err < 5f64.to_radians(),
+            "heading still {:.1}° off after 8 cm along the tape",
+            err.to_degrees()
+        );
+        assert!(d.transitions.is_empty(), "{:?}", d.transitions);
     }
 
     /// A follower knocked off its tape loses it at once: where the model has it squarely on the
