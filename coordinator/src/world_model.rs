@@ -76,7 +76,8 @@ const CONTRADICTION_M: f64 = 0.025;
 const CONTRADICTION_AT_REST: std::time::Duration = std::time::Duration::from_millis(500);
 /// A robot standing still whose line reading moves this far from what it read when it stopped,
 /// in this many updates running, was moved without its wheels turning (knocked, pushed, picked up
-/// and put down). The reading's own noise is a few micrometres.
+/// and put down). Over a tape the reading tends to move in steps of half the spots' pitch
+/// (1.5 mm), and one at rest may flicker by one step: more than one step is a move.
 const DISPLACED_AT_REST_UM: i32 = 2000;
 const DISPLACED_READS: u32 = 3;
 /// The most heading uncertainty such a move gives the robot: a turn of this much puts the sensor
@@ -740,12 +741,13 @@ impl WorldModel {
         None
     }
 
-    /// Why a robot standing still on a tape was moved: its line reading moved while its wheels
-    /// did not. Such a kick can turn the robot or shift it across its tape by centimetres while
-    /// the sensor still sees the tape, and a sighting at rest is no evidence for the filter; the
-    /// robot then drives off on a heading the model does not have, and by the time its sensor
-    /// loses the tape it is far from where the model puts it. Junctions and tape ends are left
-    /// out: there a spot can see another tape's edge come and go.
+    /// How far the line reading of a robot standing still on a tape moved while its wheels did
+    /// not, once it has for long enough: the robot was moved. Such a kick can turn the robot or
+    /// shift it across its tape by centimetres while the sensor still sees the tape, and a
+    /// sighting at rest is no evidence for the filter; the robot then drives off on a heading the
+    /// model does not have, and by the time its sensor loses the tape it is far from where the
+    /// model puts it. Junctions and tape ends are left out: there a spot can see another tape's
+    /// edge come and go.
     fn displaced_at_rest(
         &self,
         e: &mut Estimate,
