@@ -252,6 +252,15 @@ fn corrected(cov: &Matrix3<f64>, h: RowVector3<f64>, k: Vector3<f64>, r: f64) ->
     a * cov * a.transpose() + k * k.transpose() * r
 }
 
+/// Raises the position's variance on each axis to at least `position_m`² and the heading's to
+/// `heading_rad`²: what a contradiction says the estimate may be off by.
+fn widen(cov: &mut Matrix3<f64>, position_m: f64, heading_rad: f64) {
+    for i in 0..2 {
+        cov[(i, i)] = cov[(i, i)].max(position_m * position_m);
+    }
+    cov[(2, 2)] = cov[(2, 2)].max(heading_rad * heading_rad);
+}
+
 /// 1σ of the position along its worst direction, and of the heading.
 fn sigmas(cov: &Matrix3<f64>) -> PoseUncertainty {
     let (a, b, c) = (cov[(0, 0)], cov[(0, 1)], cov[(1, 1)]);
@@ -556,13 +565,9 @@ impl WorldModel {
                 e.displaced_reads = 0;
                 // The contradiction says the estimate is off by at least what the line sensor
                 // reaches either side; the safety check keeps everyone that much farther away.
-                let floor = LOST_FLOOR_M * LOST_FLOOR_M;
-                for i in 0..2 {
-                    e.cov[(i, i)] = e.cov[(i, i)].max(floor);
-                }
                 // The heading may be what is wrong (a turn that slipped): once the tape fixes
                 // the position across it, driving along it measures the heading again.
-                e.cov[(2, 2)] = e.cov[(2, 2)].max(LOST_FLOOR_RAD * LOST_FLOOR_RAD);
+                widen(&mut e.cov, LOST_FLOOR_M, LOST_FLOOR_RAD);
                 transition = Some(Transition::Lost(why));
             }
         }
@@ -646,14 +651,8 @@ impl WorldModel {
                 // Moved while standing, still on the tape: the sensor moved across the tape by
                 // `moved_m`, by a shift or a turn about the robot's centre, and only driving along
                 // the tape can tell the two apart again.
-                let floor = moved_m * moved_m;
-                for i in 0..2 {
-                    e.cov[(i, i)] = e.cov[(i, i)].max(floor);
-                }
                 let turn = (moved_m / LINE_SENSOR_AHEAD_M).min(DISPLACED_TURN_MAX_RAD);
-                e.cov[(2, 2)] = e.cov[(2, 2)].max(turn * turn);
-                e.rest_line = Some(position_um);
-                e.displaced_reads = 0;
+                widen(&mut e.cov, moved_m, turn);
             }
             e.no_tape_m = 0.0;
             e.no_tape_at_rest = std::time::Duration::ZERO;
@@ -773,7 +772,13 @@ impl WorldModel {
             return None;
         }
         e.displaced_reads += 1;
-        (e.displaced_reads >= DISPLACED_READS).then(|| f64::from(moved_um) * 1e-6)
+        if e.displaced_reads < DISPLACED_READS {
+            return None;
+        }
+        // Where it stands now is the new reference: the move is counted once.
+        e.rest_line = Some(position_um);
+        e.displaced_reads = 0;
+        Some(f64::from(moved_um) * 1e-6)
     }
 
     /// The tape nearest the line sensor at `sensor`, when the robot faces along it (facing
