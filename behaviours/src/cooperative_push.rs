@@ -15,21 +15,23 @@
 //! the team lapped the track again without finding the box, each robot's encoders measuring at
 //! least 90 % of those laps (1.75 m for the default lap of the push world's loop). A robot whose
 //! wheels are driven for 3 s without an encoder pulse fails the run at once (see
-//! [`crate::evidence`]).
+//! [`behaviour_api::evidence`]).
 
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use behaviour_api::Pose;
 use nalgebra::{Point2, Vector2};
 use protocol::packets::Side;
-use robot_actor::Pose;
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
-use crate::event::Event;
-use crate::evidence::{Odometer, EVIDENCE_SHARE};
-use crate::moves::Manoeuvre;
-use crate::team::{HeldPolicy, Team};
-use crate::track_loop::TrackLoop;
+use behaviour_api::event::Event;
+use behaviour_api::evidence::{Odometer, EVIDENCE_SHARE};
+use behaviour_api::moves::Manoeuvre;
+use behaviour_api::team::{HeldPolicy, Team};
+use behaviour_api::track_loop::TrackLoop;
+use behaviour_api::{
+    params, Behaviour, BehaviourConfig, Intent, Register, RobotView, Verdict, WorldSnapshot,
+};
 
 /// Half the body length, metres.
 const HALF_LEN: f64 = world::robot::LENGTH_M / 2.0;
@@ -155,20 +157,30 @@ pub struct CooperativePush {
     verdict: Option<Verdict>,
 }
 
-impl CooperativePush {
-    /// Builds it. Parameters: `speed` (following, m/s, default 0.1), `push` (how far the pushers
-    /// drive into the box, m, default 0.15: their wheels slip under the load, so the box moves
-    /// less), `box` (box width across the push, m, default 0.04), `laps` (laps after the push,
-    /// default 1).
+params! {
+    /// Parameters of `cooperative_push`.
+    pub struct CooperativePushParams {
+        /// Box width across the push, metres.
+        r#box: f64 = 0.04, 0.01 => 0.1;
+        /// Laps each pusher drives after the push.
+        laps: f64 = 1.0, 0.01 => 20.0;
+        /// How far the pushers drive into the box, metres (their wheels slip under the load, so the box moves less).
+        push: f64 = 0.15, 0.02 => 0.3;
+        /// Following speed, m/s.
+        speed: f32 = 0.1, 0.04 => 0.3;
+    }
+}
+
+impl Register for CooperativePush {
+    type Params = CooperativePushParams;
+
+    /// Builds it.
     ///
     /// # Errors
-    /// A track that is not one closed loop, or a parameter out of range.
-    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
+    /// A track that is not one closed loop, or no robot.
+    fn build(p: CooperativePushParams, cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f32 = cfg.param_in("speed", 0.1, 0.04..=0.3)?;
-        let push_m: f64 = cfg.param_in("push", 0.15, 0.02..=0.3)?;
-        let box_m: f64 = cfg.param_in("box", 0.04, 0.01..=0.1)?;
-        let laps: f64 = cfg.param_in("laps", 1.0, 0.01..=20.0)?;
+        let (speed, push_m, box_m, laps) = (p.speed, p.push, p.r#box, p.laps);
         if cfg.robots.is_empty() {
             return Err("needs at least one robot".into());
         }
@@ -191,7 +203,9 @@ impl CooperativePush {
             verdict: None,
         })
     }
+}
 
+impl CooperativePush {
     fn helper(&self) -> Option<u16> {
         self.bots
             .keys()
@@ -323,12 +337,57 @@ impl CooperativePush {
         out
     }
 
+    /// One step of the team: the run's time limits, spacing while following, a box found, and
+    /// the work of the current phase.
     fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
-        if let Some(stall) = self.odometer.stall() {
-            return self.fail(stall.to_string());
+        if let Some(why) = self.overdue(world, team) {
+            return self.fail(why);
         }
-        let mut out = Vec::new();
+        let mut out = self.spacing(world, team);
+        if matches!(self.phase, Phase::Approach | Phase::Lapping) {
+            let found = world.robots.iter().find(|v| {
+                v.state.proximity.front_obstacle == 1
+                    && self.bots.contains_key(&v.id)
+                    && self.gap_ahead(v, world) > 0.15
+            });
+            if let Some(id) = found.map(|v| v.id) {
+                out.extend(self.found_box(id, world));
+                return out;
+            }
+        }
+        let next = match self.phase {
+            Phase::Approach | Phase::FinderRejoins | Phase::HelperRejoins => Ok(Vec::new()),
+            Phase::Gather => self.gather(world, team),
+            Phase::FinderToSlot => Ok(self.finder_to_slot(world, team)),
+            Phase::HelperToSlot => Ok(if self.helper().is_some_and(|h| team.idle(h)) {
+                self.start_push(world)
+            } else {
+                Vec::new()
+            }),
+            Phase::Push => self.pushed(world, team),
+            Phase::HelperWaits => Ok(self.helper_waits(world)),
+            // The verdict ends the run: the spacing intents of this step are not sent.
+            Phase::Lapping => match self.lapping(world) {
+                Ok(true) => return Vec::new(),
+                other => other.map(|_| Vec::new()),
+            },
+        };
+        match next {
+            Err(why) => self.fail(why),
+            Ok(intents) => {
+                out.extend(intents);
+                out
+            }
+        }
+    }
+
+    /// Why the run must stop: a stalled wheel, a phase over its time limit, a robot backing up
+    /// for too long, an aborted manoeuvre.
+    fn overdue(&mut self, world: &WorldSnapshot, team: &Team) -> Option<String> {
+        if let Some(stall) = self.odometer.stall() {
+            return Some(stall.to_string());
+        }
         let limit = match self.phase {
             // Following is slowed by spacing; three times the lap time at full speed is plenty.
             Phase::Approach | Phase::Lapping => PHASE_LIMIT.max(Duration::from_secs_f64(
@@ -337,7 +396,7 @@ impl CooperativePush {
             _ => PHASE_LIMIT,
         };
         if world.time.saturating_sub(self.phase_since) > limit {
-            return self.fail(format!(
+            return Some(format!(
                 "{:?} took longer than {:.0} s",
                 self.phase,
                 limit.as_secs_f64()
@@ -355,12 +414,17 @@ impl CooperativePush {
             b.backing
                 .is_some_and(|since| world.time.saturating_sub(since) > backing_limit)
         }) {
-            return self.fail(format!("robot {id} backed up without finding the tape"));
+            return Some(format!("robot {id} backed up without finding the tape"));
         }
         if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
-            return self.fail(format!("robot {id}: a manoeuvre was aborted"));
+            return Some(format!("robot {id}: a manoeuvre was aborted"));
         }
-        // Spacing while following: never run into the robot ahead.
+        None
+    }
+
+    /// Spacing while following: never run into the robot ahead.
+    fn spacing(&self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
         if matches!(self.phase, Phase::Approach | Phase::Gather | Phase::Lapping) {
             for view in &world.robots {
                 if !self.bots.contains_key(&view.id) {
@@ -390,169 +454,170 @@ impl CooperativePush {
                 });
             }
         }
-        if matches!(self.phase, Phase::Approach | Phase::Lapping) {
-            let found = world.robots.iter().find(|v| {
-                v.state.proximity.front_obstacle == 1
-                    && self.bots.contains_key(&v.id)
-                    && self.gap_ahead(v, world) > 0.15
-            });
-            if let Some(id) = found.map(|v| v.id) {
-                out.extend(self.found_box(id, world));
-                return out;
-            }
+        out
+    }
+
+    /// Gathered behind the box: once both rest, the box is placed from the finder's sighting and
+    /// the finder sets off for its slot.
+    fn gather(&mut self, world: &WorldSnapshot, team: &Team) -> Result<Vec<Intent>, String> {
+        let mut out = Vec::new();
+        let settled = world.robots.iter().all(|r| {
+            let w = r.state.wheels;
+            let (l, rr) = (w.left_mps, w.right_mps);
+            team.following(r.id).is_none() && l.abs() < 0.005 && rr.abs() < 0.005
+        });
+        if settled && world.time.saturating_sub(self.phase_since) > Duration::from_millis(300) {
+            let Some(finder) = self.finder.and_then(|f| world.robot(f)) else {
+                return Err("the robot that found the box is gone".into());
+            };
+            let site = self.locate(finder);
+            tracing::debug!(x = site.centre.x, y = site.centre.y, "box located");
+            self.site = Some(site);
+            let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
+            let id = finder.id;
+            out.extend(self.send(id, route));
+            self.enter(Phase::FinderToSlot, world);
         }
-        match self.phase {
-            Phase::Approach | Phase::FinderRejoins | Phase::HelperRejoins => {}
-            Phase::Gather => {
-                let settled = world.robots.iter().all(|r| {
-                    let w = r.state.wheels;
-                    let (l, rr) = (w.left_mps, w.right_mps);
-                    team.following(r.id).is_none() && l.abs() < 0.005 && rr.abs() < 0.005
-                });
-                if settled
-                    && world.time.saturating_sub(self.phase_since) > Duration::from_millis(300)
-                {
-                    let Some(finder) = self.finder.and_then(|f| world.robot(f)) else {
-                        return self.fail("the robot that found the box is gone".into());
-                    };
-                    let site = self.locate(finder);
-                    tracing::debug!(x = site.centre.x, y = site.centre.y, "box located");
-                    self.site = Some(site);
-                    let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
-                    let id = finder.id;
-                    out.extend(self.send(id, route));
-                    self.enter(Phase::FinderToSlot, world);
+        Ok(out)
+    }
+
+    /// The finder in its slot: the helper sets off for its own, or, alone, the push starts.
+    fn finder_to_slot(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
+        if self.finder.is_some_and(|f| team.idle(f)) {
+            match (self.helper(), self.site) {
+                (Some(h), Some(site)) => {
+                    if let Some(view) = world.robot(h) {
+                        let route = self.to_slot(h, view.pose, &site, 0.0);
+                        out.extend(self.send(h, route));
+                    }
+                    self.enter(Phase::HelperToSlot, world);
                 }
-            }
-            Phase::FinderToSlot => {
-                if self.finder.is_some_and(|f| team.idle(f)) {
-                    match (self.helper(), self.site) {
-                        (Some(h), Some(site)) => {
-                            if let Some(view) = world.robot(h) {
-                                let route = self.to_slot(h, view.pose, &site, 0.0);
-                                out.extend(self.send(h, route));
-                            }
-                            self.enter(Phase::HelperToSlot, world);
-                        }
-                        _ => out.extend(self.start_push(world)),
-                    }
-                }
-            }
-            Phase::HelperToSlot => {
-                if self.helper().is_some_and(|h| team.idle(h)) {
-                    out.extend(self.start_push(world));
-                }
-            }
-            Phase::Push => {
-                if team.all_idle() {
-                    self.push_time = Some(world.time.saturating_sub(self.push_started));
-                    // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
-                    // over the tape it stood on; wheels that only slipped did not.
-                    if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
-                        return self.fail(format!(
-                            "the box did not give way: robot {id} never reached the tape behind it \
-                             ({} robot(s) pushing)",
-                            self.bots.len()
-                        ));
-                    }
-                    // The box can give way to one robot's push while the other only stood
-                    // beside it: each must have driven its share.
-                    let sent = LANE_GAP + self.push_m;
-                    let odometer = &self.odometer;
-                    let short = self.bots.iter().find_map(|(&id, b)| {
-                        let driven = odometer.distance_m(id) - b.push_odometer_m;
-                        (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
-                    });
-                    if let Some((id, driven)) = short {
-                        return self.fail(format!(
-                            "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm \
-                             push it was sent (at least {:.0} mm needed)",
-                            driven * 1e3,
-                            sent * 1e3,
-                            EVIDENCE_SHARE * sent * 1e3
-                        ));
-                    }
-                    if let Some(f) = self.finder {
-                        out.extend(self.start_backing(f));
-                    }
-                    self.enter(Phase::FinderRejoins, world);
-                }
-            }
-            Phase::HelperWaits => {
-                let room = match (self.finder.and_then(|f| world.robot(f)), self.site) {
-                    (Some(f), Some(site)) => {
-                        let p = Vector2::new(f.pose.x, f.pose.y) - site.centre.coords;
-                        p.dot(&site.along) > REJOIN_GAP
-                    }
-                    _ => true,
-                };
-                if room {
-                    if let Some(h) = self.helper() {
-                        out.extend(self.start_backing(h));
-                    }
-                    self.enter(Phase::HelperRejoins, world);
-                }
-            }
-            Phase::Lapping => {
-                let length = self.track.length_m();
-                for view in &world.robots {
-                    let odometer_m = self.odometer.distance_m(view.id);
-                    let Some(bot) = self.bots.get_mut(&view.id) else {
-                        continue;
-                    };
-                    bot.lap_odometer_m.get_or_insert(odometer_m);
-                    let s = self.track.position(view);
-                    if let (Some(before), Some(after)) = (bot.last_s, s) {
-                        bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
-                    }
-                    if s.is_some() {
-                        bot.last_s = s;
-                    }
-                }
-                if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
-                    let claimed = self.laps * length;
-                    let lapped = |id: u16| {
-                        let from = self.bots.get(&id).and_then(|b| b.lap_odometer_m);
-                        self.odometer.distance_m(id) - from.unwrap_or(0.0)
-                    };
-                    let short = self
-                        .bots
-                        .keys()
-                        .map(|&id| (id, lapped(id)))
-                        .find(|(_, m)| *m < EVIDENCE_SHARE * claimed);
-                    let least = self
-                        .bots
-                        .keys()
-                        .map(|&id| lapped(id))
-                        .fold(f64::INFINITY, f64::min);
-                    if let Some((id, measured)) = short {
-                        return self.fail(format!(
-                            "robot {id}: its place on the tape went {} lap(s) after the push but \
-                             its encoders measured {measured:.2} m, short of the {:.2} m driving \
-                             them takes",
-                            self.laps,
-                            EVIDENCE_SHARE * claimed
-                        ));
-                    }
-                    let mut v = Verdict::success(format!(
-                        "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
-                         the team has lapped {} more time(s) without finding it on the track, \
-                         each robot at least {least:.2} m by its encoders",
-                        self.bots.len(),
-                        self.push_m * 1e3,
-                        self.laps
-                    ))
-                    .with("pushes", f64::from(self.pushes))
-                    .with("least_encoder_lap_m", least);
-                    if let Some(t) = self.push_time {
-                        v = v.with("push_time_s", t.as_secs_f64());
-                    }
-                    self.verdict = Some(v);
-                    out.clear();
-                }
+                _ => out.extend(self.start_push(world)),
             }
         }
         out
+    }
+
+    /// The push ended: it counts only if the box gave way and each pusher drove its share; then
+    /// the finder backs onto the tape first.
+    fn pushed(&mut self, world: &WorldSnapshot, team: &Team) -> Result<Vec<Intent>, String> {
+        let mut out = Vec::new();
+        if team.all_idle() {
+            self.push_time = Some(world.time.saturating_sub(self.push_started));
+            // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
+            // over the tape it stood on; wheels that only slipped did not.
+            if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
+                return Err(format!(
+                    "the box did not give way: robot {id} never reached the tape behind it \
+                     ({} robot(s) pushing)",
+                    self.bots.len()
+                ));
+            }
+            // The box can give way to one robot's push while the other only stood
+            // beside it: each must have driven its share.
+            let sent = LANE_GAP + self.push_m;
+            let odometer = &self.odometer;
+            let short = self.bots.iter().find_map(|(&id, b)| {
+                let driven = odometer.distance_m(id) - b.push_odometer_m;
+                (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
+            });
+            if let Some((id, driven)) = short {
+                return Err(format!(
+                    "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm \
+                     push it was sent (at least {:.0} mm needed)",
+                    driven * 1e3,
+                    sent * 1e3,
+                    EVIDENCE_SHARE * sent * 1e3
+                ));
+            }
+            if let Some(f) = self.finder {
+                out.extend(self.start_backing(f));
+            }
+            self.enter(Phase::FinderRejoins, world);
+        }
+        Ok(out)
+    }
+
+    /// The helper backs onto the tape once the finder has left it room.
+    fn helper_waits(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        let mut out = Vec::new();
+        let room = match (self.finder.and_then(|f| world.robot(f)), self.site) {
+            (Some(f), Some(site)) => {
+                let p = Vector2::new(f.pose.x, f.pose.y) - site.centre.coords;
+                p.dot(&site.along) > REJOIN_GAP
+            }
+            _ => true,
+        };
+        if room {
+            if let Some(h) = self.helper() {
+                out.extend(self.start_backing(h));
+            }
+            self.enter(Phase::HelperRejoins, world);
+        }
+        out
+    }
+
+    /// Lapping after the push: each robot's laps along the tape, checked against its encoders;
+    /// the verdict once all have lapped (`true` then).
+    fn lapping(&mut self, world: &WorldSnapshot) -> Result<bool, String> {
+        let length = self.track.length_m();
+        for view in &world.robots {
+            let odometer_m = self.odometer.distance_m(view.id);
+            let Some(bot) = self.bots.get_mut(&view.id) else {
+                continue;
+            };
+            bot.lap_odometer_m.get_or_insert(odometer_m);
+            let s = self.track.position(view);
+            if let (Some(before), Some(after)) = (bot.last_s, s) {
+                bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
+            }
+            if s.is_some() {
+                bot.last_s = s;
+            }
+        }
+        if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
+            let claimed = self.laps * length;
+            let lapped = |id: u16| {
+                let from = self.bots.get(&id).and_then(|b| b.lap_odometer_m);
+                self.odometer.distance_m(id) - from.unwrap_or(0.0)
+            };
+            let short = self
+                .bots
+                .keys()
+                .map(|&id| (id, lapped(id)))
+                .find(|(_, m)| *m < EVIDENCE_SHARE * claimed);
+            let least = self
+                .bots
+                .keys()
+                .map(|&id| lapped(id))
+                .fold(f64::INFINITY, f64::min);
+            if let Some((id, measured)) = short {
+                return Err(format!(
+                    "robot {id}: its place on the tape went {} lap(s) after the push but \
+                     its encoders measured {measured:.2} m, short of the {:.2} m driving \
+                     them takes",
+                    self.laps,
+                    EVIDENCE_SHARE * claimed
+                ));
+            }
+            let mut v = Verdict::success(format!(
+                "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
+                 the team has lapped {} more time(s) without finding it on the track, \
+                 each robot at least {least:.2} m by its encoders",
+                self.bots.len(),
+                self.push_m * 1e3,
+                self.laps
+            ))
+            .with("pushes", f64::from(self.pushes))
+            .with("least_encoder_lap_m", least);
+            if let Some(t) = self.push_time {
+                v = v.with("push_time_s", t.as_secs_f64());
+            }
+            self.verdict = Some(v);
+            return Ok(true);
+        }
+        Ok(false)
     }
 
     fn start_push(&mut self, world: &WorldSnapshot) -> Vec<Intent> {

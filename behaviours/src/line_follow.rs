@@ -11,7 +11,7 @@
 //! Success: every robot's place on the tape advanced by the laps asked for, and its encoders
 //! measured at least 90 % of that distance (laps × loop length × 0.9; 5.2 m for the default three
 //! laps of the oval). A robot whose wheels are driven for 3 s without an encoder pulse fails the
-//! run at once (see [`crate::evidence`]).
+//! run at once (see [`behaviour_api::evidence`]).
 
 use std::collections::BTreeMap;
 use std::f64::consts::{FRAC_PI_2, PI};
@@ -19,15 +19,15 @@ use std::time::Duration;
 
 use protocol::packets::Side;
 
-use crate::api::{
-    Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, RobotView, Verdict,
-    WorldSnapshot,
+use behaviour_api::event::{Event, FrontSighting};
+use behaviour_api::evidence::{Odometer, EVIDENCE_SHARE};
+use behaviour_api::team::Team;
+use behaviour_api::track_loop::TrackLoop;
+use behaviour_api::MoveCommand;
+use behaviour_api::{
+    params, Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, Register,
+    RobotView, Verdict, WorldSnapshot,
 };
-use crate::event::{Event, FrontSighting};
-use crate::evidence::{Odometer, EVIDENCE_SHARE};
-use crate::team::Team;
-use crate::track_loop::TrackLoop;
-use crate::MoveCommand;
 
 /// A robot ahead closer than this (sensor to sensor) stops the follower.
 const STOP_GAP_M: f64 = 0.09;
@@ -73,19 +73,30 @@ pub struct LineFollow {
     odometer: Odometer,
 }
 
-impl LineFollow {
-    /// Builds it. Parameters: `speed` (m/s, default 0.15), `laps` (default 3), `spacing` (m
-    /// between sensors at which a follower starts slowing, default 0.18), `spread` (share by which
-    /// each later robot is slower than the first, default 0.25, so that faster robots catch up).
+params! {
+    /// Parameters of `line_follow`.
+    pub struct LineFollowParams {
+        /// Laps each robot drives along the tape.
+        laps: f64 = 3.0, 0.01 => 100.0;
+        /// Gap between sensors at which a follower starts slowing, metres.
+        spacing: f64 = 0.18, STOP_GAP_M + 0.01 => 1.0;
+        /// The first robot's cruise speed, m/s.
+        speed: f64 = 0.15, MIN_SPEED_MPS => 0.5;
+        /// Share by which each later robot is slower than the first, so that faster ones catch up.
+        spread: f64 = 0.25, 0.0 => 0.8;
+    }
+}
+
+impl Register for LineFollow {
+    type Params = LineFollowParams;
+
+    /// Builds it.
     ///
     /// # Errors
-    /// A track that is not one closed loop, or a parameter out of range.
-    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
+    /// A track that is not one closed loop.
+    fn build(p: LineFollowParams, cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f64 = cfg.param_in("speed", 0.15, MIN_SPEED_MPS..=0.5)?;
-        let laps: f64 = cfg.param_in("laps", 3.0, 0.01..=100.0)?;
-        let spacing_m: f64 = cfg.param_in("spacing", 0.18, STOP_GAP_M + 0.01..=1.0)?;
-        let spread: f64 = cfg.param_in("spread", 0.25, 0.0..=0.8)?;
+        let (speed, laps, spacing_m, spread) = (p.speed, p.laps, p.spacing, p.spread);
         let n = cfg.robots.len().max(2) - 1;
         let followers = cfg
             .robots
@@ -111,7 +122,9 @@ impl LineFollow {
             odometer: Odometer::new(),
         })
     }
+}
 
+impl LineFollow {
     /// Free distance ahead of robot `id`, sensor to sensor, from the world model and IR.
     fn gap_ahead(&self, id: u16, world: &WorldSnapshot) -> f64 {
         let Some(me) = world.robot(id) else {
@@ -342,7 +355,7 @@ fn in_front(me: &RobotView, other: &RobotView, half_angle: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{world as snapshot, Harness};
+    use behaviour_api::testing::{world as snapshot, Harness};
     use std::sync::Arc;
     use world::presets;
 
@@ -358,7 +371,7 @@ mod tests {
     fn a_follower_slows_then_stops_behind_the_robot_ahead() {
         let c = cfg(vec![1, 2]);
         let track = Arc::clone(&c.track);
-        let mut h = Harness::new(LineFollow::new(&c).unwrap());
+        let mut h = Harness::new(LineFollow::from_config(&c).unwrap());
         // Both on the oval's lower straight (y = 0.15), robot 2 ahead of robot 1.
         let snap = |x2: f64| {
             let on = |x: f64| track.nearest(nalgebra::Point2::new(x, 0.15)).unwrap();
@@ -397,7 +410,7 @@ mod tests {
     fn a_follower_backs_away_from_a_lost_robot_and_waits_until_it_is_found() {
         let c = cfg(vec![1, 2]);
         let track = Arc::clone(&c.track);
-        let mut h = Harness::new(LineFollow::new(&c).unwrap());
+        let mut h = Harness::new(LineFollow::from_config(&c).unwrap());
         let snap = |lost: bool, x1: f64| {
             let on = |x: f64| track.nearest(nalgebra::Point2::new(x, 0.15)).unwrap();
             let (a, b) = (on(x1), on(0.38));
@@ -459,10 +472,10 @@ mod tests {
     fn a_track_with_forks_is_refused_and_bad_parameters_are_named() {
         let mut c = cfg(vec![1]);
         c.track = Arc::new(presets::preset("junction").unwrap().track);
-        assert!(LineFollow::new(&c).is_err());
+        assert!(LineFollow::from_config(&c).is_err());
         let mut c = cfg(vec![1]);
         c.params.insert("speed".into(), "fast".into());
-        let e = LineFollow::new(&c).unwrap_err();
+        let e = LineFollow::from_config(&c).unwrap_err();
         assert!(e.contains("speed"), "{e}");
     }
 }

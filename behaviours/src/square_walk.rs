@@ -7,22 +7,30 @@
 //! least 90 % of the square's perimeter (0.36 m for the default 0.1 m side) and turns adding up
 //! to at least 90 % of a full turn (324°). A robot that stands still closes perfectly; the
 //! encoders tell it apart. A robot whose wheels are driven for 3 s without an encoder pulse fails
-//! the walk at once (see [`crate::evidence`]). The coordinator's report adds the ground truth.
+//! the walk at once (see [`behaviour_api::evidence`]). The coordinator's report adds the ground truth.
 
 use std::collections::BTreeMap;
 use std::f64::consts::FRAC_PI_2;
 
+use behaviour_api::{MoveCommand, Pose};
 use protocol::packets::MoveOutcome;
-use robot_actor::{MoveCommand, Pose};
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, Verdict, WorldSnapshot};
-use crate::event::Event;
-use crate::evidence::{Odometer, EVIDENCE_SHARE};
-use crate::moves::wrap;
-use crate::team::Team;
+use behaviour_api::event::Event;
+use behaviour_api::evidence::{Odometer, EVIDENCE_SHARE};
+use behaviour_api::moves::wrap;
+use behaviour_api::team::Team;
+use behaviour_api::{params, Behaviour, BehaviourConfig, Intent, Register, Verdict, WorldSnapshot};
 
 const SIDE_M: f32 = 0.1;
 const SPEED_MPS: f32 = 0.2;
+
+params! {
+    /// Parameters of `square_walk`.
+    pub struct SquareWalkParams {
+        /// Side of the square, metres.
+        side: f32 = SIDE_M, 0.001 => 10.0;
+    }
+}
 
 /// Per-robot progress.
 #[derive(Clone, Debug)]
@@ -47,23 +55,19 @@ pub struct SquareWalk {
     odometer: Odometer,
 }
 
-impl SquareWalk {
-    /// Builds it; `--param side=0.15` changes the side length.
-    ///
-    /// # Errors
-    /// A side that is not a positive length.
-    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
-        let side_m: f32 = cfg.param("side", SIDE_M)?;
-        if !(side_m > 0.0 && side_m < 10.0) {
-            return Err(format!("parameter side={side_m}: expected 0 < side < 10 m"));
-        }
+impl Register for SquareWalk {
+    type Params = SquareWalkParams;
+
+    fn build(p: SquareWalkParams, _: &BehaviourConfig) -> Result<Self, String> {
         Ok(Self {
-            side_m,
+            side_m: p.side,
             walkers: BTreeMap::new(),
             odometer: Odometer::new(),
         })
     }
+}
 
+impl SquareWalk {
     /// Corner `c` (1..=4; 4 is the start) and the heading after turning there.
     fn corner(&self, start: Pose, c: usize) -> ((f64, f64), f64) {
         let side = f64::from(self.side_m);
@@ -287,7 +291,7 @@ impl Behaviour for SquareWalk {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{world as snapshot, Harness};
+    use behaviour_api::testing::{world as snapshot, Harness};
     use std::f64::consts::{PI, TAU};
 
     fn world(poses: &[(u16, Pose)], pending: usize) -> WorldSnapshot {
@@ -301,7 +305,7 @@ mod tests {
     }
 
     fn walk_of(robots: &[u16]) -> Harness<SquareWalk> {
-        let mut h = Harness::new(SquareWalk::new(&BehaviourConfig::default()).unwrap());
+        let mut h = Harness::new(SquareWalk::from_config(&BehaviourConfig::default()).unwrap());
         let poses: Vec<(u16, Pose)> = robots.iter().map(|&id| (id, START)).collect();
         h.start(&world(&poses, 0));
         h
@@ -336,7 +340,7 @@ mod tests {
 
     #[test]
     fn queues_eight_moves_per_robot_and_judges_the_closure() {
-        let mut h = Harness::new(SquareWalk::new(&BehaviourConfig::default()).unwrap());
+        let mut h = Harness::new(SquareWalk::from_config(&BehaviourConfig::default()).unwrap());
         let intents = h.start(&world(&[(1, START), (2, START)], 0));
         assert_eq!(intents.len(), 16);
         assert_eq!(h.team().outstanding(2), 8);

@@ -11,7 +11,7 @@
 //! 1.94 m loop). To hand the token on, each carrier must close up on the robot ahead while the
 //! others run at half its speed; on seeds 1 to 10 every robot drove more than two loops in three
 //! rounds, and half a loop per round leaves room for detours and waits. A robot whose wheels are
-//! driven for 3 s without an encoder pulse fails the run at once (see [`crate::evidence`]).
+//! driven for 3 s without an encoder pulse fails the run at once (see [`behaviour_api::evidence`]).
 
 use std::collections::BTreeMap;
 use std::f64::consts::{FRAC_PI_2, PI};
@@ -19,12 +19,14 @@ use std::time::Duration;
 
 use protocol::packets::Side;
 
-use crate::api::{Behaviour, BehaviourConfig, Intent, RobotView, Verdict, WorldSnapshot};
-use crate::event::{Event, FrontSighting};
-use crate::evidence::Odometer;
-use crate::moves::{Leg, Legs};
-use crate::team::Team;
-use crate::track_loop::TrackLoop;
+use behaviour_api::event::{Event, FrontSighting};
+use behaviour_api::evidence::Odometer;
+use behaviour_api::moves::{Leg, Legs};
+use behaviour_api::team::Team;
+use behaviour_api::track_loop::TrackLoop;
+use behaviour_api::{
+    params, Behaviour, BehaviourConfig, Intent, Register, RobotView, Verdict, WorldSnapshot,
+};
 
 /// The carrier's LED, and everyone else's.
 const TOKEN_RGB: [u8; 3] = [255, 110, 0];
@@ -107,18 +109,28 @@ pub struct TokenRing {
     verdict: Option<Verdict>,
 }
 
-impl TokenRing {
-    /// Builds it. Parameters: `speed` (the carrier's, m/s, default 0.12; the others run at half),
-    /// `rounds` (token rounds to complete, default 3), `reverse` (reverse after every round,
-    /// default true).
+params! {
+    /// Parameters of `token_ring`.
+    pub struct TokenRingParams {
+        /// Whether the team reverses after every round.
+        reverse: bool = true;
+        /// Token rounds to complete.
+        rounds: u32 = 3, 1 => 50;
+        /// The carrier's speed, m/s (the others run at half).
+        speed: f32 = 0.12, 0.08 => 0.3;
+    }
+}
+
+impl Register for TokenRing {
+    type Params = TokenRingParams;
+
+    /// Builds it.
     ///
     /// # Errors
-    /// Fewer than two robots, a track that is not one closed loop, or a parameter out of range.
-    pub fn new(cfg: &BehaviourConfig) -> Result<Self, String> {
+    /// Fewer than two robots, or a track that is not one closed loop.
+    fn build(p: TokenRingParams, cfg: &BehaviourConfig) -> Result<Self, String> {
         let track = TrackLoop::new(&cfg.track)?;
-        let speed: f32 = cfg.param_in("speed", 0.12, 0.08..=0.3)?;
-        let rounds: u32 = cfg.param_in("rounds", 3, 1..=50)?;
-        let reverse: bool = cfg.param("reverse", true)?;
+        let (speed, rounds, reverse) = (p.speed, p.rounds, p.reverse);
         if cfg.robots.len() < 2 {
             return Err("a token ring needs at least two robots".into());
         }
@@ -142,7 +154,9 @@ impl TokenRing {
             verdict: None,
         })
     }
+}
 
+impl TokenRing {
     fn speed_of(&self, id: u16) -> f32 {
         if id == self.holder {
             self.speed

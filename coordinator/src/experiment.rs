@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use actix::Actor;
 use anyhow::{anyhow, bail, Context as _, Result};
-use behaviours::{BehaviourConfig, Constructor, Registry};
+use behaviours::{BehaviourConfig, Entry, Registry};
 use protocol::packets::Hello;
 use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
@@ -22,9 +22,9 @@ use tokio::sync::oneshot;
 use crate::instruments::{Hooks, Run};
 use crate::observer::{Instruments, Observer};
 use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
-use crate::safety::Safety;
 use crate::supervisor::{Abort, Outcome, Supervisor};
-use crate::world_model::WorldModel;
+use world_model::safety::Safety;
+use world_model::WorldModel;
 
 /// Where the robots come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -403,7 +403,7 @@ struct Setup {
     /// The world, cut down to the plan's robots.
     world: World,
     track: Arc<Track>,
-    constructor: Constructor,
+    entry: Entry,
     /// Each kick with the index of its robot in the world.
     kicks: Vec<(usize, Kick)>,
 }
@@ -437,17 +437,16 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
         world.robots.truncate(n);
     }
     let track = Arc::new(world.track.clone());
-    let probe = BehaviourConfig {
-        robots: world.robots.iter().map(|r| r.id).collect(),
-        seed: plan.seed,
-        params: plan.params.clone(),
-        track: Arc::clone(&track),
-        ..BehaviourConfig::default()
-    };
-    (entry.constructor)(&probe).map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
-    probe
-        .check_params(&plan.behaviour)
-        .map_err(|e| anyhow!(e))?;
+    // The parameters are parsed into the behaviour's typed declaration and checked against the
+    // world here; nothing is built.
+    entry
+        .check(&BehaviourConfig {
+            robots: world.robots.iter().map(|r| r.id).collect(),
+            seed: plan.seed,
+            params: plan.params.clone(),
+            track: Arc::clone(&track),
+        })
+        .map_err(|e| anyhow!("behaviour {}: {e}", plan.behaviour))?;
     if !plan.body_faults.is_empty() && plan.transport != Transport::Sim {
         bail!("body faults can only be injected into simulated robots (transport sim)");
     }
@@ -468,7 +467,7 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
         world_name,
         world,
         track,
-        constructor: entry.constructor,
+        entry: *entry,
         kicks,
     })
 }
@@ -593,14 +592,13 @@ fn start_supervisor(
         seed: plan.seed,
         params: plan.params.clone(),
         track: Arc::clone(&setup.track),
-        ..BehaviourConfig::default()
     };
     let (done_tx, done_rx) = oneshot::channel();
     let supervisor = Supervisor::new(
         robots.to_vec(),
         Arc::clone(&setup.track),
         (setup.world.arena.width_m, setup.world.arena.height_m),
-        setup.constructor,
+        setup.entry,
         config,
         Duration::from_millis(100),
         Safety::default(),

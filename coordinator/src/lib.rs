@@ -13,6 +13,7 @@
 //! - `sweep`: batches of runs over seeds and settings, with their statistics.
 #![warn(missing_docs)]
 
+pub mod behaviour_actor;
 pub mod experiment;
 #[doc = include_str!("../../docs/writing-behaviours.md")]
 pub mod guide {}
@@ -22,19 +23,18 @@ pub mod panel;
 pub mod plot;
 pub mod record;
 pub mod recover;
-pub mod relocalise;
 pub mod replay;
 pub mod report;
-pub mod safety;
 pub mod supervisor;
 pub mod sweep;
-pub mod world_model;
 
 pub use experiment::{load_world, run, run_with, Kick, LinkFault, Plan, SettingWrite, Transport};
 pub use instruments::Run;
 pub use observer::Instruments;
 pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};
 pub use simulator::BodyFault;
+/// The estimation layer the supervisor keeps (its own crate, re-exported for the benches).
+pub use world_model;
 
 /// An actix system on a current-thread tokio runtime, with its clock paused when `paused`: under a
 /// paused clock simulated time advances whenever every task waits, so a simulated experiment runs

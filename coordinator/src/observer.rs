@@ -23,7 +23,7 @@ use tokio::time::Instant;
 use world::robot;
 
 use crate::record::{fox_pose, fox_time, layout_json, Recorder, Topic};
-use crate::world_model::WorldModel;
+use world_model::WorldModel;
 
 /// How often a world snapshot is taken (recorded, sent to the panel).
 pub const SNAPSHOT_PERIOD: Duration = Duration::from_millis(100);

@@ -11,10 +11,10 @@ use std::time::Duration;
 
 use behaviours::Verdict;
 
-use crate::world_model::LocalisationStats;
 use robot_actor::actor::LinkStats;
 use robot_actor::Pose;
 use serde::Serialize;
+use world_model::LocalisationStats;
 
 /// One robot's part of the report.
 #[derive(Clone, Debug)]

@@ -7,10 +7,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use actix::prelude::*;
-use behaviours::actor::{FromRobot, Held, Localised, Panicked, Reply, Snapshot, Start};
 use behaviours::{
-    BehaviourActor, BehaviourConfig, Constructor, Encounter, Intent, LocalisationEvent,
-    MoveOutcome, Verdict, WorldSnapshot,
+    BehaviourConfig, Encounter, Entry, Intent, LocalisationEvent, MoveOutcome, Reply, Verdict,
+    WorldSnapshot,
 };
 use robot_actor::actor::{Command, Enqueue};
 use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateBatch, StateUpdated};
@@ -19,9 +18,12 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tracing::{debug, info, warn};
 
-use crate::relocalise::{Action, Relocaliser};
-use crate::safety::{self, Safety};
-use crate::world_model::{Transition, WorldModel};
+use crate::behaviour_actor::{
+    BehaviourActor, FromRobot, Held, Localised, Panicked, Snapshot, Start,
+};
+use world_model::relocalise::{Action, Relocaliser};
+use world_model::safety::{self, Safety};
+use world_model::{Transition, WorldModel};
 
 /// Behaviour restarts allowed before the experiment fails.
 pub const MAX_RESTARTS: u32 = 3;
@@ -42,7 +44,7 @@ pub struct Outcome {
     /// The world model's view of every robot at the end.
     pub views: Vec<behaviours::RobotView>,
     /// Each robot's localisation record (lost episodes, time lost, worst uncertainty).
-    pub localisation: Vec<(u16, crate::world_model::LocalisationStats)>,
+    pub localisation: Vec<(u16, world_model::LocalisationStats)>,
     /// Every robot link lost or (re)connected during the experiment, in order.
     pub links: Vec<LinkRecord>,
 }
@@ -76,7 +78,7 @@ pub struct Supervisor {
     arena: (f64, f64),
     encounters_new: Vec<Encounter>,
     encounters: Vec<Encounter>,
-    constructor: Constructor,
+    behaviour_entry: Entry,
     config: BehaviourConfig,
     behaviour: Option<Addr<BehaviourActor>>,
     started_at: Instant,
@@ -155,13 +157,13 @@ impl Plan {
 }
 
 impl Supervisor {
-    /// A supervisor over connected robots, running the behaviour built by `constructor`.
+    /// A supervisor over connected robots, running the behaviour `entry` builds.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         robots: Vec<(u16, Robot)>,
         track: Arc<Track>,
         arena: (f64, f64),
-        constructor: Constructor,
+        entry: Entry,
         config: BehaviourConfig,
         snapshot_period: Duration,
         safety: Safety,
@@ -173,7 +175,7 @@ impl Supervisor {
             arena,
             encounters_new: Vec::new(),
             encounters: Vec::new(),
-            constructor,
+            behaviour_entry: entry,
             config,
             behaviour: None,
             started_at: Instant::now(),
@@ -265,7 +267,7 @@ impl Supervisor {
         if self.done.is_none() {
             return;
         }
-        let behaviour = match (self.constructor)(&self.config) {
+        let behaviour = match self.behaviour_entry.build(&self.config) {
             Ok(b) => BehaviourActor::new(b).start(),
             Err(why) => {
                 self.finish(Verdict::failure(format!("behaviour not built: {why}")), ctx);

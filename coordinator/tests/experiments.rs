@@ -187,7 +187,7 @@ fn a_panicking_behaviour_is_restarted_after_every_robot_stopped() {
     let mut registry = Registry::builtin();
     registry.register("fragile", "panics once", "open", |cfg: &BehaviourConfig| {
         Ok(Box::new(Fragile {
-            inner: behaviours::square_walk::SquareWalk::new(cfg)?,
+            inner: <behaviours::square_walk::SquareWalk as behaviours::Register>::from_config(cfg)?,
             snapshots: 0,
         }))
     });

@@ -9,6 +9,7 @@
 #![warn(missing_docs)]
 
 pub mod file;
+#[cfg(feature = "graph")]
 pub mod graph;
 pub mod pose;
 pub mod presets;
@@ -23,6 +24,7 @@ use nalgebra::{Point2, Rotation2, Vector2};
 use robot::{RADIUS_M as ROBOT_RADIUS_M, WIDTH_M as ROBOT_WIDTH_M};
 
 pub use file::{load, parse, WorldError, WorldFile};
+#[cfg(feature = "graph")]
 pub use graph::{GraphEdge, GraphNode, NodeKind, Route, TrackGraph};
 pub use pose::{wrap_angle, Pose};
 pub use presets::{grid, preset, preset_names};

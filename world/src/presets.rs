@@ -278,6 +278,7 @@ mod tests {
     use std::f64::consts::PI;
 
     use super::*;
+    #[cfg(feature = "graph")]
     use crate::graph::{NodeKind, TrackGraph};
     use crate::track::Surface;
     use crate::{robot, GRAVITY_MPS2};
@@ -343,6 +344,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "graph")]
     fn a_serpentine_is_one_closed_loop_with_room_for_its_robots() {
         for n in [1, 10, 500, 1000] {
             let w = serpentine(n);
@@ -370,6 +372,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "graph")]
     fn oval_is_one_closed_loop_of_the_stated_size() {
         let w = load("oval");
         assert_eq!((w.arena.width_m, w.arena.height_m), (1.0, 0.6));
@@ -416,6 +419,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "graph")]
     fn junction_has_fork_merge_siding_and_single_lane_stem() {
         let w = load("junction");
         assert_eq!((w.arena.width_m, w.arena.height_m), (1.6, 1.0));

@@ -304,6 +304,13 @@ fn main() -> ExitCode {
         for name in registry.names() {
             let e = registry.get(name).expect("listed");
             println!("{name:18} (world {:8}) {}", e.world, e.description);
+            let params = e.params();
+            if params.is_empty() {
+                println!("{:20}no parameters", "");
+            }
+            for p in params {
+                println!("{:20}--param {p}", "");
+            }
         }
         return ExitCode::SUCCESS;
     }

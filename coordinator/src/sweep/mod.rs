@@ -110,12 +110,21 @@ pub fn main(cmd: &SweepCommand) -> Result<bool> {
     // Every run would fail the same way: say so once instead.
     let mut registry = behaviours::Registry::builtin();
     crate::panel::register_teleop(&mut registry);
-    if registry.get(&definition.behaviour).is_none() {
+    let Some(entry) = registry.get(&definition.behaviour) else {
         bail!(
             "unknown behaviour {:?}; known: {}",
             definition.behaviour,
             registry.names().join(", ")
         );
+    };
+    // Each parameter value alone against the behaviour's declaration: a key it does not take or
+    // a value it refuses would fail every run of the sweep.
+    for (key, values) in &definition.params {
+        for value in values {
+            entry
+                .check_params(&[(key.clone(), value.clone())].into())
+                .map_err(|e| anyhow::anyhow!("--param {key}={value}: {e}"))?;
+        }
     }
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
     let jobs = match a.jobs {

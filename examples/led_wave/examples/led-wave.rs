@@ -3,17 +3,16 @@
 
 use std::time::Duration;
 
-use behaviours::Registry;
+use behaviours::{Entry, Registry};
 use coordinator::Plan;
 
 fn main() -> anyhow::Result<()> {
     let mut registry = Registry::builtin();
-    registry.register(
+    registry.add(Entry::of::<led_wave::LedWave>(
         "led_wave",
         "robots light up and spin in turn",
         "open",
-        |_| Ok(Box::<led_wave::LedWave>::default()),
-    );
+    ));
     let plan = Plan::sim("led_wave")
         .robots(3)
         .duration(Duration::from_secs(60));

@@ -8,8 +8,10 @@
 
 use std::time::Duration;
 
-use behaviours::{Behaviour, Event, HeldPolicy, Intent, MoveCommand, MoveOutcome, Team};
-use behaviours::{Verdict, WorldSnapshot};
+use behaviour_api::{
+    Behaviour, BehaviourConfig, Event, HeldPolicy, Intent, MoveCommand, MoveOutcome, NoParams,
+    Register, Team, Verdict, WorldSnapshot,
+};
 
 const LIT: [u8; 3] = [255, 120, 0];
 /// How long a held spin is sent again before the run fails.
@@ -34,6 +36,15 @@ impl LedWave {
         };
         let spin = Intent::moves(robot, [SPIN], self.turn as u32);
         [vec![Intent::Led { robot, rgb: LIT }], spin].concat()
+    }
+}
+
+impl Register for LedWave {
+    // It takes no parameters: a `--param` of any key is refused by name.
+    type Params = NoParams;
+
+    fn build(_: NoParams, _: &BehaviourConfig) -> Result<Self, String> {
+        Ok(Self::default())
     }
 }
 
@@ -80,7 +91,7 @@ impl Behaviour for LedWave {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use behaviours::testing::{world, Harness};
+    use behaviour_api::testing::{world, Harness};
 
     #[test]
     fn robots_take_turns_and_the_verdict_needs_the_encoders_to_have_turned() {

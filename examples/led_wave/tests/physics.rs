@@ -3,15 +3,17 @@
 
 use std::time::Duration;
 
-use behaviours::Registry;
+use behaviours::{Entry, Registry};
 use coordinator::Plan;
 
 #[test]
 fn three_robots_spin_in_turn_without_contact() {
     let mut registry = Registry::builtin();
-    registry.register("led_wave", "robots spin in turn", "open", |_| {
-        Ok(Box::<led_wave::LedWave>::default())
-    });
+    registry.add(Entry::of::<led_wave::LedWave>(
+        "led_wave",
+        "robots spin in turn",
+        "open",
+    ));
     let plan = Plan::sim("led_wave")
         .robots(3)
         .duration(Duration::from_secs(60));

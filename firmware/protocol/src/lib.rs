@@ -2,6 +2,7 @@
 #![cfg_attr(not(test), no_std)]
 #![warn(missing_docs)]
 
+pub mod command;
 pub mod frame;
 pub mod layout;
 pub mod packets;
@@ -9,6 +10,7 @@ pub mod settings;
 pub mod slip;
 pub mod state;
 
+pub use command::MoveCommand;
 pub use frame::{decode, encode, Frame, Header, HEADER_LEN, MAX_PACKET, MAX_PAYLOAD};
 pub use layout::FieldPath;
 pub use layout::{FieldInfo, Layout, TypeInfo};

@@ -4,7 +4,6 @@
 use std::time::Duration;
 
 use protocol::packets::{MoveOutcome, NackReason, Side};
-use robot_actor::RobotEventKind;
 
 /// An IR reflection: something (a box, a wall, a robot) in front of or behind the robot.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -101,78 +100,4 @@ pub enum Event {
         /// Why, when the robot gave a reason this host knows.
         reason: Option<NackReason>,
     },
-}
-
-impl Event {
-    /// The behaviour's view of a robot actor event.
-    pub fn from_robot(kind: &RobotEventKind) -> Self {
-        let side = |code: u8| Side::try_from(code).unwrap_or(Side::Front);
-        match kind {
-            RobotEventKind::Connected(_) => Event::Connected,
-            RobotEventKind::LinkLost => Event::LinkLost,
-            RobotEventKind::MoveFinished { tag, outcome, .. } => Event::MoveFinished {
-                tag: *tag,
-                outcome: *outcome,
-            },
-            RobotEventKind::QueueEmpty => Event::QueueEmpty,
-            RobotEventKind::Obstacle(o) => Event::Obstacle(Obstacle {
-                side: side(o.side),
-                power_level: o.power_level,
-            }),
-            RobotEventKind::Encounter(e) => Event::Sighting(Sighting {
-                robot: e.robot_id,
-                side: side(e.side),
-                relative_heading_deg: e.relative_heading_deg,
-                range_mm: e.range_mm,
-                message: e.message,
-            }),
-            RobotEventKind::Line(true) => Event::LineLost,
-            RobotEventKind::Line(false) => Event::LineFound,
-            RobotEventKind::WatchdogStop => Event::WatchdogStop,
-            RobotEventKind::Overrun(n) => Event::Overrun(*n),
-            RobotEventKind::Refused(n) => Event::Refused {
-                packet_type: n.packet_type,
-                reason: NackReason::try_from(n.reason).ok(),
-            },
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use protocol::packets;
-
-    #[test]
-    fn wire_codes_become_names() {
-        let seen = RobotEventKind::Encounter(packets::RobotEncountered {
-            robot_id: 3,
-            side: 1,
-            led: 0,
-            power_level: 2,
-            relative_heading_deg: -90,
-            range_mm: 40,
-            message: 0,
-        });
-        let Event::Sighting(s) = Event::from_robot(&seen) else {
-            panic!("not a sighting");
-        };
-        assert_eq!((s.robot, s.side, s.range_mm), (3, Side::Rear, 40));
-        let front = RobotEventKind::Obstacle(packets::Obstacle {
-            side: 0,
-            power_level: 1,
-            led: 0,
-        });
-        assert_eq!(
-            Event::from_robot(&front),
-            Event::Obstacle(Obstacle {
-                side: Side::Front,
-                power_level: 1
-            })
-        );
-        assert_eq!(
-            Event::from_robot(&RobotEventKind::Line(true)),
-            Event::LineLost
-        );
-    }
 }

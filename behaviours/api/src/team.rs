@@ -11,12 +11,14 @@ use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 
 use protocol::packets::MoveOutcome;
-use robot_actor::MoveCommand;
+use protocol::MoveCommand;
 
-use crate::api::{Intent, RobotView, Verdict, WorldSnapshot};
 use crate::event::Event;
 use crate::evidence::Odometer;
+use crate::intent::Intent;
+use crate::snapshot::{RobotView, WorldSnapshot};
 use crate::track_loop::TrackLoop;
+use crate::verdict::Verdict;
 
 /// What happens to a move the supervisor's safety check held back (it never reached the robot).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -5,7 +5,7 @@
 //! will leave it. Each footprint also grows by twice its robot's position uncertainty (1σ), so a
 //! robot the world model is unsure of gets a wider berth.
 
-use behaviours::{Intent, MoveCommand, Pose, WorldSnapshot};
+use behaviour_api::{Intent, MoveCommand, Pose, WorldSnapshot};
 
 /// Tunables of the check.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -292,7 +292,7 @@ impl Footprint {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use behaviours::RobotView;
+    use behaviour_api::RobotView;
     use std::f64::consts::FRAC_PI_2;
 
     fn world(robots: &[(u16, f64, f64, f64)]) -> WorldSnapshot {

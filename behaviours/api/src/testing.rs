@@ -3,8 +3,8 @@
 //! runs it in.
 //!
 //! ```
-//! use behaviours::testing::{world, Harness};
-//! use behaviours::{Behaviour, Intent, MoveCommand, Team, WorldSnapshot};
+//! use behaviour_api::testing::{world, Harness};
+//! use behaviour_api::{Behaviour, Intent, MoveCommand, Team, WorldSnapshot};
 //!
 //! struct Nudge;
 //! impl Behaviour for Nudge {
@@ -26,14 +26,15 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use protocol::packets::MoveOutcome;
-use robot_actor::Pose;
+use world::Pose;
 
-use crate::actor::Runner;
-use crate::api::{
-    Behaviour, Intent, LocalisationEvent, RobotView, TrackPosition, Verdict, WorldSnapshot,
-};
+use crate::behaviour::Behaviour;
 use crate::event::Event;
+use crate::intent::Intent;
+use crate::runner::Runner;
+use crate::snapshot::{LocalisationEvent, RobotView, TrackPosition, WorldSnapshot};
 use crate::team::Team;
+use crate::verdict::Verdict;
 
 /// Builds a [`WorldSnapshot`] robot by robot.
 #[derive(Clone, Debug)]

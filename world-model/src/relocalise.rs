@@ -14,14 +14,14 @@
 
 use std::time::Duration;
 
-use behaviours::{MoveCommand, Pose, RobotView};
+use behaviour_api::{MoveCommand, Pose, RobotView};
 use nalgebra::{Point2, Vector2};
-use simulator::world::Track;
 use tokio::time::Instant;
 use world::robot::LINE_SENSOR_AHEAD_M;
 use world::wrap_angle;
+use world::Track;
 
-use crate::world_model::RELOCATE_M;
+use crate::model::RELOCATE_M;
 
 /// Speed of the search and of the moves back onto the tape: slow enough that the sensor sees a
 /// 6 mm tape in several samples and the robot stops within a few millimetres.
@@ -288,7 +288,7 @@ fn turn_to(from: f64, to: f64) -> MoveCommand {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use simulator::world::presets;
+    use world::presets;
 
     const ROOM: ([f64; 2], [f64; 2]) = ([0.0, 0.0], [10.0, 10.0]);
 
@@ -307,7 +307,7 @@ mod tests {
         RobotView {
             id: 1,
             pose: Pose { x, y, theta },
-            uncertainty: behaviours::PoseUncertainty {
+            uncertainty: behaviour_api::PoseUncertainty {
                 position_m: 0.02,
                 heading_rad: 0.05,
             },

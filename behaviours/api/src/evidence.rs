@@ -10,9 +10,9 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use robot_actor::Pose;
+use world::Pose;
 
-use crate::api::{RobotView, WorldSnapshot};
+use crate::snapshot::{RobotView, WorldSnapshot};
 
 /// A wheel set-point at least this fast (m/s) counts as driving: below about 0.012 m/s the
 /// firmware's speed meter cannot resolve the wheel and lets it rest, and the slowest move or

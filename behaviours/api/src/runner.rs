@@ -1,60 +1,13 @@
-//! `BehaviourActor`: the thin actix shell a behaviour runs in. The supervisor sends it snapshots
-//! and events; each reply carries the behaviour's intents and, once it is done, its verdict. A
-//! panic inside the behaviour is caught and reported, so the supervisor can stop every robot and
-//! restart it.
+//! [`Runner`]: a behaviour with its [`Team`], calling its hooks through the team's books and
+//! nothing more once it has a verdict. The supervisor's actor shell and the testing
+//! [`Harness`](crate::testing::Harness) both drive a behaviour through it.
 
-use std::panic::{catch_unwind, AssertUnwindSafe};
-
-use actix::prelude::*;
-use robot_actor::RobotEventKind;
-
-use crate::api::{Behaviour, Intent, LocalisationEvent, Verdict, WorldSnapshot};
+use crate::behaviour::Behaviour;
 use crate::event::Event;
+use crate::intent::Intent;
+use crate::snapshot::{LocalisationEvent, WorldSnapshot};
 use crate::team::Team;
-
-/// The experiment starts.
-#[derive(Message)]
-#[rtype(result = "Result<Reply, Panicked>")]
-pub struct Start(pub WorldSnapshot);
-
-/// A new world snapshot.
-#[derive(Message)]
-#[rtype(result = "Result<Reply, Panicked>")]
-pub struct Snapshot(pub WorldSnapshot);
-
-/// A robot event, with the latest snapshot.
-#[derive(Message)]
-#[rtype(result = "Result<Reply, Panicked>")]
-pub struct FromRobot {
-    /// Robot id.
-    pub robot: u16,
-    /// What happened.
-    pub kind: RobotEventKind,
-    /// The latest snapshot.
-    pub world: WorldSnapshot,
-}
-
-/// Intents the supervisor's safety check held back, with the reasons.
-#[derive(Message)]
-#[rtype(result = "Result<Reply, Panicked>")]
-pub struct Held {
-    /// Each held intent and why.
-    pub held: Vec<(Intent, String)>,
-    /// The latest snapshot.
-    pub world: WorldSnapshot,
-}
-
-/// A robot was found lost or re-localised, with the latest snapshot.
-#[derive(Message)]
-#[rtype(result = "Result<Reply, Panicked>")]
-pub struct Localised {
-    /// Robot id.
-    pub robot: u16,
-    /// What happened.
-    pub event: LocalisationEvent,
-    /// The latest snapshot.
-    pub world: WorldSnapshot,
-}
+use crate::verdict::Verdict;
 
 /// What the behaviour answered.
 #[derive(Debug, Default)]
@@ -67,12 +20,8 @@ pub struct Reply {
     pub progress: Vec<(String, f64)>,
 }
 
-/// The behaviour panicked; the message is its panic payload when it was text.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Panicked(pub String);
-
 /// A behaviour with its [`Team`]: calls its hooks, keeps the team's books on what goes in and
-/// out, and calls nothing more once it has a verdict. [`BehaviourActor`] and
+/// out, and calls nothing more once it has a verdict. The supervisor's actor shell and
 /// [`crate::testing::Harness`] both drive a behaviour through it.
 pub struct Runner<B: Behaviour + ?Sized = dyn Behaviour> {
     behaviour: Box<B>,
@@ -195,71 +144,5 @@ impl<B: Behaviour + ?Sized> Runner<B> {
             verdict: self.verdict.clone(),
             progress,
         }
-    }
-}
-
-/// Runs one behaviour.
-pub struct BehaviourActor {
-    runner: Runner,
-}
-
-impl BehaviourActor {
-    /// Wraps a behaviour.
-    pub fn new(behaviour: Box<dyn Behaviour>) -> Self {
-        Self {
-            runner: Runner::new(behaviour),
-        }
-    }
-
-    fn guarded(&mut self, f: impl FnOnce(&mut Runner) -> Reply) -> Result<Reply, Panicked> {
-        let runner = &mut self.runner;
-        catch_unwind(AssertUnwindSafe(|| f(runner))).map_err(|payload| {
-            let text = payload
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "non-text panic".into());
-            Panicked(text)
-        })
-    }
-}
-
-impl Actor for BehaviourActor {
-    type Context = Context<Self>;
-}
-
-impl Handler<Start> for BehaviourActor {
-    type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: Start, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|r| r.start(&msg.0))
-    }
-}
-
-impl Handler<Snapshot> for BehaviourActor {
-    type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: Snapshot, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|r| r.snapshot(&msg.0))
-    }
-}
-
-impl Handler<FromRobot> for BehaviourActor {
-    type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: FromRobot, _: &mut Context<Self>) -> Self::Result {
-        let event = Event::from_robot(&msg.kind);
-        self.guarded(|r| r.event(msg.robot, &event, &msg.world))
-    }
-}
-
-impl Handler<Held> for BehaviourActor {
-    type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: Held, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|r| r.held(&msg.held, &msg.world))
-    }
-}
-
-impl Handler<Localised> for BehaviourActor {
-    type Result = Result<Reply, Panicked>;
-    fn handle(&mut self, msg: Localised, _: &mut Context<Self>) -> Self::Result {
-        self.guarded(|r| r.localised(msg.robot, &msg.event, &msg.world))
     }
 }

@@ -5,7 +5,8 @@
 use std::collections::VecDeque;
 use std::f64::consts::PI;
 
-use robot_actor::{MoveCommand, Pose};
+use protocol::MoveCommand;
+use world::Pose;
 
 pub use world::wrap_angle as wrap;
 

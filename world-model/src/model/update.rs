@@ -1,0 +1,301 @@
+//! One state update taken into the model: the odometry step carried into the covariance, the
+//! tape and the marks the line sensor sees matched against the track, and the robot found lost
+//! when what it senses contradicts the model.
+
+use super::*;
+
+/// What one update says besides the pose: the odometry step and the line sensor's reading.
+#[derive(Clone, Copy)]
+struct Reading {
+    /// Distance driven along the mean heading since the last update, metres.
+    driven: f64,
+    /// Heading turned since the last update, radians.
+    turned: f64,
+    sees_tape: bool,
+    /// The firmware follows the tape it sees.
+    following: bool,
+    position_um: i16,
+}
+
+/// The odometry step since the last update, carried into the estimate: the corrected pose it
+/// gives and the reading to correct it with.
+fn predict(e: &mut Estimate, u: &StateUpdated) -> (Pose, Reading) {
+    let (driven, turned) = e.last_odometry.map_or((0.0, 0.0), |p| {
+        let turned = wrap_angle(u.pose.theta - p.theta);
+        let mid = p.theta + turned / 2.0;
+        let step = Vector2::new(u.pose.x - p.x, u.pose.y - p.y);
+        (step.dot(&Vector2::new(mid.cos(), mid.sin())), turned)
+    });
+    if e.last_odometry.is_none() {
+        // A robot may start on a mark: that is no mark's end.
+        e.last_mark = u.state.line.mark;
+    }
+    e.last_odometry = Some(u.pose);
+    let pose = e.correction.apply(u.pose);
+    // The odometry step carries the covariance forward: the heading's uncertainty becomes
+    // uncertainty across the path, and each step adds its own noise.
+    let mid = pose.theta - turned / 2.0;
+    let (s, c) = mid.sin_cos();
+    let f = Matrix3::new(1.0, 0.0, -driven * s, 0.0, 1.0, driven * c, 0.0, 0.0, 1.0);
+    let g = Vector3::new(c, s, 0.0);
+    let q_heading = Q_HEADING_RAD2_PER_M * driven.abs() + Q_HEADING_RAD2_PER_RAD * turned.abs();
+    e.cov = f * e.cov * f.transpose()
+        + g * g.transpose() * (Q_ALONG_M2_PER_M * driven.abs())
+        + Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, q_heading));
+    let sees_tape = u.state.line.flags & LINE_LOST == 0;
+    let following = sees_tape && u.state.line.flags & LINE_FOLLOWING != 0;
+    let reading = Reading {
+        driven,
+        turned,
+        sees_tape,
+        following,
+        position_um: u.state.line.position_um,
+    };
+    (pose, reading)
+}
+
+impl WorldModel {
+    /// Takes one state update; says when the robot's localisation changed.
+    pub fn apply(&self, u: &StateUpdated) -> Option<Transition> {
+        let mut e = self
+            .estimates
+            .get(&u.robot_id)
+            .map(|e| e.clone())
+            .unwrap_or_default();
+        let (mut pose, r) = predict(&mut e, u);
+        let mut transition = None;
+        let searching = e.lost.as_ref().is_some_and(|l| !l.fixed);
+        if searching {
+            if r.sees_tape {
+                (pose, transition) = self.fix_lost(&mut e, u, &r, pose);
+            }
+        } else if r.sees_tape {
+            (pose, transition) = self.correct_on_tape(&mut e, u, &r, pose);
+            pose = self.correct_at_mark(&mut e, u, &r, pose);
+        }
+        if u.state.line.mark == e.last_mark {
+            e.mark_held_m += r.driven.abs();
+        } else {
+            e.mark_held_m = 0.0;
+        }
+        e.last_mark = u.state.line.mark;
+        let since_last = e.last_at.map_or(std::time::Duration::ZERO, |t| {
+            u.at.saturating_duration_since(t)
+        });
+        e.last_at = Some(u.at);
+        if e.lost.is_none() {
+            let at_rest = (r.driven.abs() <= 1e-4 && r.turned.abs() <= 1e-3).then_some(since_last);
+            let why =
+                self.contradiction(&mut e, pose, r.sees_tape, r.position_um, r.driven, at_rest);
+            // A contradiction may have been resolved by moving the estimate.
+            pose = e.correction.apply(u.pose);
+            if let Some(why) = why {
+                lose(&mut e, u);
+                transition = Some(Transition::Lost(why));
+            }
+        }
+        e.saw_tape = r.sees_tape;
+        e.was_following = r.following;
+        self.publish(u, e, pose);
+        transition
+    }
+
+    /// A lost robot that sees tape near its estimate: the position across that tape is fixed.
+    fn fix_lost(
+        &self,
+        e: &mut Estimate,
+        u: &StateUpdated,
+        r: &Reading,
+        pose: Pose,
+    ) -> (Pose, Option<Transition>) {
+        let Some((better, n)) = self.relocate(pose, r.position_um) else {
+            return (pose, None);
+        };
+        e.correction = Correction::between(u.pose, better);
+        let h = RowVector3::new(n.x, n.y, 0.0);
+        e.cov = corrected(&e.cov, h, h.transpose(), R_LATERAL_M2);
+        if let Some(l) = e.lost.as_mut() {
+            l.fixed = true;
+        }
+        (better, Some(Transition::Fixed))
+    }
+
+    /// A tracked robot that sees tape: the reading matched to the track corrects the pose (a
+    /// follower's through the match, one driving moves through the filter's gain); a lost robot
+    /// whose reading matches is found.
+    fn correct_on_tape(
+        &self,
+        e: &mut Estimate,
+        u: &StateUpdated,
+        r: &Reading,
+        mut pose: Pose,
+    ) -> (Pose, Option<Transition>) {
+        let Reading {
+            driven,
+            turned,
+            following,
+            position_um,
+            ..
+        } = *r;
+        let mut found = None;
+        let sigma = sigmas(&e.cov);
+        let (gate_m, gate_rad) = if following {
+            // A follower is on some tape whatever the model says: the gates widen with the
+            // distance it followed tape without a match.
+            let widen = GATE_GROWTH_PER_M * e.unmatched_m;
+            (
+                (MATCH_M + widen)
+                    .max(3.0 * sigma.position_m)
+                    .min(MATCH_MAX_M),
+                (ALIGNED_RAD + widen / MATCH_MAX_M * ALIGNED_RAD).min(ALIGNED_MAX_RAD),
+            )
+        } else {
+            (
+                MATCH_M.max(3.0 * sigma.position_m).min(MATCH_MAX_M),
+                (ALIGNED_RAD + 3.0 * sigma.heading_rad).min(ALIGNED_MAX_RAD),
+            )
+        };
+        // A robot driving moves is corrected by the filter's own gain, through which a
+        // lateral offset that keeps growing as it drives also corrects its heading; one
+        // standing still reads the same offset again and again, which is no new evidence.
+        let moved = driven.abs() > 1e-4 || turned.abs() > 1e-3;
+        let matched = if following {
+            self.match_tape(pose, position_um, gate_m, gate_rad)
+                .map(|m| {
+                    let h = RowVector3::new(m.normal.x, m.normal.y, 0.0);
+                    e.cov = corrected(&e.cov, h, h.transpose() * LATERAL_GAIN, R_LATERAL_M2);
+                    if m.heading_gain > 0.0 {
+                        let h = RowVector3::new(0.0, 0.0, 1.0);
+                        e.cov =
+                            corrected(&e.cov, h, h.transpose() * m.heading_gain, R_HEADING_RAD2);
+                    }
+                    m.pose
+                })
+        } else if moved {
+            self.filter_tape(pose, &e.cov, position_um, gate_rad)
+                .map(|(better, cov)| {
+                    e.cov = cov;
+                    better
+                })
+        } else {
+            None
+        };
+        if let Some(better) = matched {
+            pose = better;
+            e.correction = Correction::between(u.pose, pose);
+            e.unmatched_m = 0.0;
+            if let Some(l) = e.lost.take() {
+                e.stats.lost_time += u.at.saturating_duration_since(l.since);
+                found = Some(Transition::Found);
+            }
+        } else if following {
+            e.unmatched_m += driven.abs();
+        }
+        (pose, found)
+    }
+
+    /// A robot whose colour sensor crosses a mark's end: the pose along the tape is corrected to
+    /// that end.
+    fn correct_at_mark(&self, e: &mut Estimate, u: &StateUpdated, r: &Reading, pose: Pose) -> Pose {
+        let Reading {
+            driven,
+            turned,
+            following,
+            ..
+        } = *r;
+        let mark = u.state.line.mark;
+        // A robot driving moves counts a change of colour only after the old colour held for
+        // a while: at a mark's edge its colour sensor flickers.
+        // It must also be driving along, not turning on the spot (which sweeps the sensor
+        // off a mark and back), and the end must be within what its uncertainty allows.
+        let settled = following
+            || (e.mark_held_m > MARK_SETTLED_M && driven.abs() > 1e-4 && turned.abs() < 0.01);
+        let gate_m = if following {
+            MARK_GATE_M
+        } else {
+            (3.0 * sigmas(&e.cov).position_m).clamp(MARK_GATE_MIN_M, MARK_GATE_M)
+        };
+        if mark == e.last_mark || !settled {
+            return pose;
+        }
+        let colour = if mark != 0 { mark } else { e.last_mark };
+        let entering = mark != 0;
+        let Some((better, t)) = self.at_mark_end(pose, colour, entering, following, gate_m) else {
+            return pose;
+        };
+        e.correction = Correction::between(u.pose, better);
+        let h = RowVector3::new(t.x, t.y, 0.0);
+        e.cov = corrected(&e.cov, h, h.transpose() * MARK_GAIN, R_MARK_M2);
+        better
+    }
+
+    /// Stores the estimate and writes the robot's view: pose, state, place on the track,
+    /// uncertainty and localisation.
+    fn publish(&self, u: &StateUpdated, mut e: Estimate, pose: Pose) {
+        let uncertainty = sigmas(&e.cov);
+        e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
+        let localisation = if e.lost.is_some() {
+            Localisation::Lost
+        } else {
+            Localisation::Tracking
+        };
+        self.estimates.insert(u.robot_id, e);
+        let (s, c) = pose.theta.sin_cos();
+        let sensor = Point2::new(
+            pose.x + LINE_SENSOR_AHEAD_M * c,
+            pose.y + LINE_SENSOR_AHEAD_M * s,
+        );
+        // Only robots over tape are looked up: most of the floor is white.
+        let on_track = if self.track.floor_at(sensor).ir_reflectance < 0.9 {
+            self.track
+                .nearest(sensor)
+                .filter(|n| n.distance_m < ON_TRACK_M)
+                .map(|n| behaviour_api::TrackPosition {
+                    edge: n.edge,
+                    along_m: n.offset_m,
+                    offset_m: n.distance_m,
+                })
+        } else {
+            None
+        };
+        // Noted before the map's write guard is taken: a snapshot holds the list's lock while it
+        // reads the map, so the other order could deadlock across threads.
+        self.changed(u.robot_id);
+        if let Some(mut entry) = self.robots.get_mut(&u.robot_id) {
+            let view = Arc::make_mut(&mut entry);
+            view.connected = true;
+            view.pose = pose;
+            view.odometry = u.pose;
+            view.state = u.state;
+            view.front_close_at = if u.state.proximity.front_obstacle == 1 {
+                view.front_close_at.or(Some(pose))
+            } else {
+                None
+            };
+            view.pending_moves = usize::from(u.state.locomotion.queue_len);
+            view.on_track = on_track;
+            view.uncertainty = uncertainty;
+            view.localisation = localisation;
+        }
+    }
+}
+
+/// The robot is found lost: its evidence counters restart and its covariance is widened to what
+/// the contradiction says the estimate may be off by.
+fn lose(e: &mut Estimate, u: &StateUpdated) {
+    e.lost = Some(Lost {
+        since: u.at,
+        fixed: false,
+    });
+    e.stats.lost_episodes += 1;
+    e.no_tape_m = 0.0;
+    e.no_tape_at_rest = std::time::Duration::ZERO;
+    e.stray_tape_m = 0.0;
+    e.rest_line = None;
+    e.displaced_reads = 0;
+    // The contradiction says the estimate is off by at least what the line sensor
+    // reaches either side; the safety check keeps everyone that much farther away.
+    // The heading may be what is wrong (a turn that slipped): once the tape fixes
+    // the position across it, driving along it measures the heading again.
+    widen(&mut e.cov, LOST_FLOOR_M, LOST_FLOOR_RAD);
+}
