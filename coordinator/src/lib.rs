@@ -1,16 +1,16 @@
 //! The PocketFleet coordinator: runs one supervised multi-robot experiment.
 //!
 //! # Layout
-//! - `supervisor`: the supervisor actor and behaviour supervision.
-//! - `world_model`: the live world model in a `DashMap`.
-//! - `safety`: the predictive check every intent passes.
+//! - `plan`: what an experiment is asked to be ([`Plan`]) and how a world is found by name.
 //! - `experiment`: wiring robots, supervisor and behaviour for one run.
+//! - `supervisor`: the supervisor actor: the world model fed, every intent checked, the behaviour
+//!   supervised.
+//! - `behaviour_actor`: the actix shell a behaviour runs in.
 //! - `report`: the experiment report, as text or JSON.
-//! - `record`, `replay`: MCAP recording of a run and its replay.
-//! - `observer`, `instruments`: the actor that feeds the recorder, the panel and plots.
-//! - `panel`: the live web control panel.
-//! - `plot`: the trajectory plot of a run.
-//! - `sweep`: batches of runs over seeds and settings, with their statistics.
+//! - `instruments`: everything around a run, behind [`Instruments`] and [`Run`]: MCAP recording,
+//!   replay and recover, the live web panel, trajectory plots, and sweeps of many runs.
+//!
+//! The estimation layer (world model, relocalisation, safety check) is the `world-model` crate.
 #![warn(missing_docs)]
 
 pub mod behaviour_actor;
@@ -18,19 +18,13 @@ pub mod experiment;
 #[doc = include_str!("../../docs/writing-behaviours.md")]
 pub mod guide {}
 pub mod instruments;
-pub mod observer;
-pub mod panel;
-pub mod plot;
-pub mod record;
-pub mod recover;
-pub mod replay;
+pub mod plan;
 pub mod report;
 pub mod supervisor;
-pub mod sweep;
 
-pub use experiment::{load_world, run, run_with, Kick, LinkFault, Plan, SettingWrite, Transport};
-pub use instruments::Run;
-pub use observer::Instruments;
+pub use experiment::{run, run_with};
+pub use instruments::{Instruments, Run};
+pub use plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
 pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};
 pub use simulator::BodyFault;
 /// The estimation layer the supervisor keeps (its own crate, re-exported for the benches).

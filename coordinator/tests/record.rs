@@ -97,8 +97,11 @@ fn recorded_cooperative_push_replays_to_identical_world_snapshots() {
 
     // A finished recording recovers to the same messages, chunk for chunk.
     let again = scratch.path().join("push-recovered.mcap");
-    let kept = coordinator::recover::recover_file(&path, &again).unwrap();
-    assert_eq!(kept.ending, coordinator::recover::Ending::Complete);
+    let kept = coordinator::instruments::recover::recover_file(&path, &again).unwrap();
+    assert_eq!(
+        kept.ending,
+        coordinator::instruments::recover::Ending::Complete
+    );
     assert_eq!(kept.messages, stats.messages);
     let (before, after) = (
         std::fs::read(&path).unwrap(),
@@ -227,7 +230,8 @@ fn a_killed_recorder_leaves_a_complete_file_that_recover_indexes() {
     assert!(mcap::Summary::read(&bytes).unwrap().is_none());
 
     // (a) Our replay reads it.
-    let recording = coordinator::replay::load(&path).expect("load reads a killed recording");
+    let recording =
+        coordinator::instruments::replay::load(&path).expect("load reads a killed recording");
     assert!(recording.counts["/packets"] > 500, "{:?}", recording.counts);
     assert!(recording.counts["/world"] > 5, "{:?}", recording.counts);
     assert_eq!(recording.counts.values().sum::<u64>(), all);
@@ -326,12 +330,13 @@ fn garbage_and_cut_headers_are_clear_errors() {
     let scratch = scratch();
     let junk = scratch.path().join("junk.mcap");
     std::fs::write(&junk, b"definitely not MCAP").unwrap();
-    let e = coordinator::replay::load(&junk).unwrap_err();
+    let e = coordinator::instruments::replay::load(&junk).unwrap_err();
     assert!(format!("{e:#}").contains("not a readable PocketFleet recording"));
-    let missing = coordinator::replay::load(&scratch.path().join("nothing-here.mcap")).unwrap_err();
+    let missing = coordinator::instruments::replay::load(&scratch.path().join("nothing-here.mcap"))
+        .unwrap_err();
     assert!(format!("{missing:#}").contains("reading"));
     // A valid MCAP magic and header with nothing after it.
     let cut = scratch.path().join("cut.mcap");
     std::fs::write(&cut, b"\x89MCAP0\r\n\x01").unwrap();
-    assert!(coordinator::replay::load(&cut).is_err());
+    assert!(coordinator::instruments::replay::load(&cut).is_err());
 }

@@ -5,7 +5,7 @@
 
 /// Checks one input; panics when a property fails.
 pub fn check(data: &[u8]) {
-    let Ok(rec) = coordinator::replay::read(data) else {
+    let Ok(rec) = coordinator::instruments::replay::read(data) else {
         return;
     };
     assert_eq!(rec.links.len(), rec.info.robots, "one link list per robot");
@@ -18,8 +18,8 @@ mod tests {
 
     #[test]
     fn non_recordings_are_refused() {
-        assert!(coordinator::replay::read(b"").is_err());
-        assert!(coordinator::replay::read(b"\x89MCAP0\r\n").is_err());
+        assert!(coordinator::instruments::replay::read(b"").is_err());
+        assert!(coordinator::instruments::replay::read(b"\x89MCAP0\r\n").is_err());
         check(b"not mcap");
     }
 }

@@ -13,7 +13,7 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use behaviours::Registry;
 use clap::{Parser, ValueEnum};
-use coordinator::panel::PanelOptions;
+use coordinator::instruments::panel::PanelOptions;
 use coordinator::{Instruments, Plan, Transport};
 use simulator::world::presets;
 
@@ -133,7 +133,7 @@ enum Sub {
     },
     /// Run a behaviour over seeds and settings, each run its own experiment, and summarise the
     /// success rate and metrics (`coordinator sweep merge` combines shards).
-    Sweep(Box<coordinator::sweep::SweepCommand>),
+    Sweep(Box<coordinator::instruments::sweep::SweepCommand>),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -299,7 +299,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     simulator::cli::init_logging();
     let mut registry = Registry::builtin();
-    coordinator::panel::register_teleop(&mut registry);
+    coordinator::instruments::panel::register_teleop(&mut registry);
     if args.list_behaviours {
         for name in registry.names() {
             let e = registry.get(name).expect("listed");
@@ -325,7 +325,7 @@ fn main() -> ExitCode {
     let result = match &args.command {
         Some(Sub::Replay { file, panel, plot }) => replay(file, *panel, plot.as_deref(), &registry),
         Some(Sub::Recover { file, output }) => recover(file, output.as_deref()),
-        Some(Sub::Sweep(sweep)) => coordinator::sweep::main(sweep),
+        Some(Sub::Sweep(sweep)) => coordinator::instruments::sweep::main(sweep),
         None => run(&args, &registry),
     };
     match result {
@@ -400,7 +400,7 @@ fn finish(
     }
     if let Some((path, plan)) = plot {
         let world = plan_world(&plan, registry)?;
-        coordinator::plot::write_trajectories(
+        coordinator::instruments::plot::write_trajectories(
             &path,
             &world,
             &run.observed.trails,
@@ -413,10 +413,10 @@ fn finish(
 
 fn recover(file: &std::path::Path, output: Option<&std::path::Path>) -> Result<bool> {
     let output = output.map_or_else(
-        || coordinator::recover::default_output(file),
+        || coordinator::instruments::recover::default_output(file),
         std::path::Path::to_path_buf,
     );
-    let kept = coordinator::recover::recover_file(file, &output)?;
+    let kept = coordinator::instruments::recover::recover_file(file, &output)?;
     println!(
         "recovered {} into {}: {kept}",
         file.display(),
@@ -445,7 +445,7 @@ fn replay_file(
     plot: Option<&std::path::Path>,
     registry: &Registry,
 ) -> Result<bool> {
-    let recording = coordinator::replay::load(file)?;
+    let recording = coordinator::instruments::replay::load(file)?;
     if let Some(why) = &recording.truncated {
         eprintln!("coordinator: the recording ends early ({why}); replaying what is there");
     }

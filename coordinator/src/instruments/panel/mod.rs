@@ -29,7 +29,7 @@ use robot_actor::Robot;
 use serde_json::{json, Value};
 use tokio::sync::broadcast;
 
-use crate::record::{leaf_bytes, leaf_value, leaves, Leaf};
+use crate::instruments::record::{leaf_bytes, leaf_value, leaves, Leaf};
 use crate::supervisor::{EStop, PanelIntent, Supervisor};
 
 const INDEX: &str = include_str!("index.html");

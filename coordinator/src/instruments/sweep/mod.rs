@@ -109,7 +109,7 @@ pub fn main(cmd: &SweepCommand) -> Result<bool> {
     let definition = Definition::from_args(a)?;
     // Every run would fail the same way: say so once instead.
     let mut registry = behaviours::Registry::builtin();
-    crate::panel::register_teleop(&mut registry);
+    crate::instruments::panel::register_teleop(&mut registry);
     let Some(entry) = registry.get(&definition.behaviour) else {
         bail!(
             "unknown behaviour {:?}; known: {}",

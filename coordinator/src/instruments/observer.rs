@@ -22,7 +22,7 @@ use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::robot;
 
-use crate::record::{fox_pose, fox_time, layout_json, Recorder, Topic};
+use crate::instruments::record::{fox_pose, fox_time, layout_json, Recorder, Topic};
 use world_model::WorldModel;
 
 /// How often a world snapshot is taken (recorded, sent to the panel).
@@ -36,7 +36,7 @@ pub struct Instruments {
     /// Record to this MCAP file.
     pub record: Option<PathBuf>,
     /// Serve the control panel.
-    pub panel: Option<crate::panel::PanelOptions>,
+    pub panel: Option<crate::instruments::panel::PanelOptions>,
     /// Keep each robot's trail for a trajectory plot.
     pub trails: bool,
 }

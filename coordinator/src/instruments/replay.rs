@@ -18,7 +18,7 @@ use serde_json::Value;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use crate::record::{Dir, RunInfo, Topic, METADATA_NAME};
+use crate::instruments::record::{Dir, RunInfo, Topic, METADATA_NAME};
 
 /// One recorded link: (time since the recording's zero, direction, bytes).
 pub type RecordedLink = Vec<(Duration, Dir, Vec<u8>)>;
@@ -61,7 +61,7 @@ pub fn read(buf: &[u8]) -> Result<Recording> {
     // chunk panics on an overflow in 0.26), so a file is first rewritten from whole, checked
     // chunks only; what that cuts away is what the file's tail had torn.
     let mut clean = std::io::Cursor::new(Vec::new());
-    let kept = crate::recover::recover(buf, &mut clean)?;
+    let kept = crate::instruments::recover::recover(buf, &mut clean)?;
     let buf = clean.get_ref().as_slice();
     let lenient = || mcap::read::Options::IgnoreEndMagic.into();
     let mut info = None;
@@ -121,7 +121,7 @@ pub fn read(buf: &[u8]) -> Result<Recording> {
             ));
         }
     }
-    if let crate::recover::Ending::Cut { why, .. } = kept.ending {
+    if let crate::instruments::recover::Ending::Cut { why, .. } = kept.ending {
         rec.truncated.get_or_insert(why);
     }
     if rec.counts.is_empty() && rec.truncated.is_some() {

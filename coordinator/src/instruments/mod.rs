@@ -1,6 +1,15 @@
-//! The experiment's optional instruments, wired in at a few points of [`crate::run_with`]: the
+//! Everything around a run, behind one door: the experiment asks for [`Instruments`] and gets a
+//! [`Run`] back, and calls its [`Hooks`] at a few points of [`crate::run_with`]. Behind it: the
 //! MCAP recorder (a tap on every link and the observer's snapshots), replay's links and check,
-//! and the control panel.
+//! recovery of a cut recording, the control panel, trajectory plots, and sweeps of many runs
+//! (each a child process of the `coordinator` binary).
+//!
+//! # Layout
+//! - `observer`: the actor that samples the world model for the recorder, the panel and plots.
+//! - `record`: the MCAP writer and its layouts; `replay` and `recover` read recordings back.
+//! - `panel`: the live web control panel.
+//! - `plot`: the trajectory plot of a run.
+//! - `sweep`: batches of runs over seeds and settings, with their statistics.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -17,13 +26,23 @@ use simulator::world::World;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 
-use crate::experiment::{Plan, Transport};
-use crate::observer::{
-    track_lines, BoxShape, Instruments, Observed, Observer, ObserverSetup, TakeObserved,
+pub mod observer;
+pub mod panel;
+pub mod plot;
+pub mod record;
+pub mod recover;
+pub mod replay;
+pub mod sweep;
+
+pub use observer::Instruments;
+
+use crate::instruments::observer::{
+    track_lines, BoxShape, Observed, Observer, ObserverSetup, TakeObserved,
 };
-use crate::panel::{PanelContext, PanelServer};
-use crate::record::{RecordStats, Recorder, RunInfo, Tap, Topic};
-use crate::replay::{Recording, ReplayCheck};
+use crate::instruments::panel::{PanelContext, PanelServer};
+use crate::instruments::record::{RecordStats, Recorder, RunInfo, Tap, Topic};
+use crate::instruments::replay::{Recording, ReplayCheck};
+use crate::plan::{Plan, Transport};
 use crate::report::Report;
 use crate::supervisor::Supervisor;
 
@@ -63,11 +82,11 @@ impl Hooks {
     ) -> Result<Self> {
         // First, so that a busy panel address stops the run before anything starts.
         let listener = match &instruments.panel {
-            Some(options) => Some(crate::panel::bind(options.addr)?),
+            Some(options) => Some(crate::instruments::panel::bind(options.addr)?),
             None => None,
         };
         let replay = match &plan.transport {
-            Transport::Replay(path) => Some(Arc::new(crate::replay::load(path)?)),
+            Transport::Replay(path) => Some(Arc::new(crate::instruments::replay::load(path)?)),
             _ => None,
         };
         let recorder = match &instruments.record {
@@ -168,7 +187,7 @@ impl Hooks {
             "body": [world::robot::LENGTH_M, world::robot::WIDTH_M],
             "replay": self.replay.is_some(),
         });
-        let server = crate::panel::serve(
+        let server = crate::instruments::panel::serve(
             listener,
             PanelContext {
                 supervisor: supervisor.clone(),
@@ -212,7 +231,7 @@ impl Hooks {
         let replay = self
             .replay
             .as_ref()
-            .map(|r| crate::replay::check(r, &observed.captured));
+            .map(|r| crate::instruments::replay::check(r, &observed.captured));
         let recording = match &self.recorder {
             Some(rec) => {
                 // The overall result (the behaviour's word overruled by the ground truth), the

@@ -8,7 +8,7 @@ use anyhow::{anyhow, Context as _, Result};
 use plotters::prelude::*;
 use simulator::world::World;
 
-use crate::observer::{robot_colour, track_lines};
+use crate::instruments::observer::{robot_colour, track_lines};
 
 /// Draws the plot into an SVG string.
 ///

@@ -1,0 +1,175 @@
+//! Intents carried out: each checked against every robot's swept footprint before it reaches its
+//! robot, chained moves anchored where the robot is, and the control panel's commands and
+//! emergency stop.
+
+use super::*;
+
+impl Supervisor {
+    /// Carries out a reply's intents in order and tells the behaviour which were held.
+    pub(super) fn carry_out_all(&mut self, intents: Vec<Intent>, ctx: &mut Context<Self>) {
+        let world = self.snapshot_peek();
+        // Once a robot's move is held, its later moves in the same reply are held too: they were
+        // planned from where the held one would have left it.
+        let mut held_robots: Vec<u16> = Vec::new();
+        let before = self.held.len();
+        for intent in intents {
+            let id = intent.robot();
+            if held_robots.contains(&id) && matches!(intent, Intent::Move { .. }) {
+                self.held
+                    .push((world.time, intent, "follows a held move".into()));
+                continue;
+            }
+            if !self.carry_out(intent, &world) {
+                held_robots.push(id);
+            }
+        }
+        // The behaviour hears what did not reach its robots.
+        if self.held.len() > before {
+            if let Some(b) = self.behaviour.clone() {
+                let held = self.held[before..]
+                    .iter()
+                    .map(|(_, i, why)| (*i, why.clone()))
+                    .collect();
+                let reply = b.send(Held { held, world });
+                ctx.spawn(
+                    reply
+                        .into_actor(self)
+                        .map(|r, act, ctx| act.on_reply(r, ctx)),
+                );
+            }
+        }
+    }
+
+    /// The world as it is, without consuming the new encounters.
+    pub(super) fn snapshot_peek(&self) -> WorldSnapshot {
+        WorldSnapshot {
+            time: Instant::now() - self.started_at,
+            robots: behaviours::Robots(self.model.shared_views()),
+            encounters: Vec::new(),
+            arena: self.arena,
+        }
+    }
+
+    /// Checks and sends one intent; `false` when it was held back (the robot is lost, or the
+    /// safety check refused it).
+    pub(super) fn carry_out(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
+        let id = intent.robot();
+        let drives = matches!(
+            intent,
+            Intent::Move { .. } | Intent::FollowLine { .. } | Intent::WheelSpeeds { .. }
+        );
+        if drives && self.relocalising.contains_key(&id) {
+            let reason = format!("robot {id} is lost: it is being re-localised");
+            self.held.push((world.time, intent, reason));
+            return false;
+        }
+        // The robot's watchdog has stopped it; a command would be lost, or (queued in a link
+        // that comes back) carried out from a stale plan.
+        if world.robot(id).is_some_and(|r| !r.connected) {
+            let reason = format!("robot {id}'s link is lost");
+            self.held.push((world.time, intent, reason));
+            return false;
+        }
+        self.carry_out_checked(intent, world)
+    }
+
+    /// Passes one intent through the safety check and sends it.
+    pub(super) fn carry_out_checked(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
+        let id = intent.robot();
+        let from = self.planned.get(&id).map(Plan::end);
+        let others: Vec<(u16, Pose)> = self
+            .planned
+            .iter()
+            .filter(|(other, _)| **other != id)
+            .map(|(other, plan)| (*other, plan.end()))
+            .collect();
+        if let Err(reason) = self.safety.check_planned(&intent, world, from, &others) {
+            warn!(?intent, reason, "intent held back");
+            self.held.push((world.time, intent, reason));
+            return false;
+        }
+        match intent {
+            Intent::Move { command, .. } => {
+                let start = from
+                    .or_else(|| world.robot(id).map(|r| r.pose))
+                    .unwrap_or_default();
+                let end = safety::end_pose(start, command);
+                let now = Instant::now();
+                let plan = self.planned.entry(id).or_insert_with(|| Plan {
+                    ends: Default::default(),
+                    sent: now,
+                });
+                plan.ends.push_back((self.next_move, end));
+                plan.sent = now;
+            }
+            Intent::Led { .. } | Intent::IrMessage { .. } => {}
+            _ => {
+                self.planned.remove(&id);
+            }
+        }
+        let Some(robot) = self.robot(intent.robot()) else {
+            return true;
+        };
+        let addr = robot.addr().clone();
+        match intent {
+            Intent::Move { command, tag, .. } => {
+                let number = self.next_move;
+                self.next_move = self.next_move.wrapping_add(1);
+                self.move_tags.insert((id, number), tag);
+                addr.do_send(Enqueue::tagged(command, number));
+            }
+            Intent::FollowLine { speed, .. } => addr.do_send(Command::FollowLine(speed)),
+            Intent::WheelSpeeds { left, right, .. } => {
+                addr.do_send(Command::WheelSpeeds(left, right))
+            }
+            Intent::ClearQueue { .. } => addr.do_send(Command::ClearQueue),
+            Intent::Stop { .. } => addr.do_send(Command::Stop),
+            Intent::Led { rgb, .. } => addr.do_send(Command::Led(rgb[0], rgb[1], rgb[2])),
+            Intent::IrMessage { message, .. } => addr.do_send(Command::IrMessage(message)),
+        }
+        true
+    }
+
+    /// The move sent to `robot` under `number`, if one was, is not the behaviour's: its finish
+    /// keeps no tag, and the behaviour does not hear of it.
+    pub(super) fn disown_move(&mut self, robot: u16, number: u32) {
+        self.move_tags.remove(&(robot, number));
+    }
+}
+
+/// A command from the control panel: checked by the safety check like a behaviour's intent, then
+/// sent; the error says why it was held. The behaviour does not hear a panel move's finish.
+#[derive(Message)]
+#[rtype(result = "Result<(), String>")]
+pub struct PanelIntent(pub Intent);
+
+impl Handler<PanelIntent> for Supervisor {
+    type Result = Result<(), String>;
+    fn handle(&mut self, msg: PanelIntent, _: &mut Context<Self>) -> Self::Result {
+        let world = self.snapshot_peek();
+        let intent = msg.0;
+        let id = intent.robot();
+        let number = self.next_move;
+        if self.carry_out(intent, &world) {
+            self.disown_move(id, number);
+            Ok(())
+        } else {
+            Err(self.held.last().map(|h| h.2.clone()).unwrap_or_default())
+        }
+    }
+}
+
+/// The panel's emergency stop: every robot stops and the behaviour is over.
+#[derive(Message)]
+#[rtype(result = "()")]
+pub struct EStop;
+
+impl Handler<EStop> for Supervisor {
+    type Result = ();
+    fn handle(&mut self, _: EStop, ctx: &mut Context<Self>) {
+        // Also when the behaviour is already over: the panel may have moved robots since.
+        self.stop_all();
+        let verdict = self.unfinished("emergency stop from the control panel".into());
+        self.finish(verdict, ctx);
+    }
+}

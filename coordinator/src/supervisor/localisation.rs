@@ -1,0 +1,143 @@
+//! A robot found lost: stopped, its behaviour told, and driven by the relocaliser until the tape
+//! fixes its pose again.
+
+use super::*;
+
+impl Supervisor {
+    /// A robot's sensing contradicted the model: stop it and every robot moving within its
+    /// reach, hold its intents, tell the behaviour, and start re-localising it.
+    pub(super) fn on_lost(&mut self, id: u16, why: String, ctx: &mut Context<Self>) {
+        let world = self.snapshot_peek();
+        let Some(view) = world.robot(id).cloned() else {
+            return;
+        };
+        warn!(
+            robot = id,
+            why, "robot lost: stopping it and re-localising it"
+        );
+        // The sweep stays where the safety check lets the lost robot's footprint go: its
+        // circumscribed circle, the margin and its uncertainty (with room for it to grow a
+        // little on the way) inside the arena.
+        let clear = (self.safety.length_m / 2.0).hypot(self.safety.width_m / 2.0)
+            + self.safety.margin_m
+            + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
+        let (w, h) = self.arena;
+        let room = ([clear, clear], [w - clear, h - clear]);
+        let (routine, first) = Relocaliser::start(&view, self.model.track(), room, Instant::now());
+        self.relocalising.insert(id, routine);
+        self.act(id, first, &world);
+        let reach = LOST_REACH_M + safety::UNCERTAINTY_SIGMAS * view.uncertainty.position_m;
+        let near: Vec<u16> = world
+            .robots
+            .iter()
+            .filter(|o| o.id != id && !self.relocalising.contains_key(&o.id))
+            .filter(|o| {
+                let moving = o.pending_moves > 0
+                    || o.state.wheels.left_mps.abs() > 0.005
+                    || o.state.wheels.right_mps.abs() > 0.005;
+                let planned = self.planned.get(&o.id).map_or(o.pose, Plan::end);
+                let within = |p: Pose| (p.x - view.pose.x).hypot(p.y - view.pose.y) < reach;
+                moving && (within(o.pose) || within(planned))
+            })
+            .map(|o| o.id)
+            .collect();
+        for other in near {
+            info!(robot = other, lost = id, "stopping a robot near a lost one");
+            self.planned.remove(&other);
+            if let Some(r) = self.robot(other) {
+                r.addr().do_send(Command::Stop);
+            }
+        }
+        self.tell(id, LocalisationEvent::Lost { why }, ctx);
+    }
+
+    pub(super) fn tell(&mut self, id: u16, event: LocalisationEvent, ctx: &mut Context<Self>) {
+        if let Some(b) = self.behaviour.clone() {
+            let reply = b.send(Localised {
+                robot: id,
+                event,
+                world: self.snapshot_peek(),
+            });
+            ctx.spawn(
+                reply
+                    .into_actor(self)
+                    .map(|r, act, ctx| act.on_reply(r, ctx)),
+            );
+        }
+    }
+
+    /// Carries out one step of a re-localisation routine.
+    pub(super) fn act(&mut self, id: u16, action: Action, world: &WorldSnapshot) {
+        match action {
+            Action::Stop => {
+                self.planned.remove(&id);
+                if let Some(r) = self.robot(id) {
+                    r.addr().do_send(Command::Stop);
+                }
+            }
+            Action::Moves(moves) => {
+                tracing::debug!(robot = id, ?moves, "re-localisation moves");
+                let mut held = Vec::new();
+                for command in moves {
+                    let intent = Intent::Move {
+                        robot: id,
+                        command,
+                        tag: RELOCALISATION_TAG,
+                    };
+                    let number = self.next_move;
+                    if !held.is_empty() || !self.carry_out_checked(intent, world) {
+                        held.push(command);
+                    } else {
+                        self.disown_move(id, number);
+                    }
+                }
+                if !held.is_empty() {
+                    if let Some(r) = self.relocalising.get_mut(&id) {
+                        r.held(held, Instant::now());
+                    }
+                }
+            }
+        }
+    }
+
+    /// Advances the routine of a lost robot after a state update or a transition.
+    pub(super) fn relocalise(
+        &mut self,
+        id: u16,
+        transition: Option<Transition>,
+        ctx: &mut Context<Self>,
+    ) {
+        let now = Instant::now();
+        let world = self.snapshot_peek();
+        let Some(view) = world.robot(id).cloned() else {
+            return;
+        };
+        let track = Arc::clone(self.model.track());
+        let Some(routine) = self.relocalising.get_mut(&id) else {
+            return;
+        };
+        let action = match transition {
+            Some(Transition::Fixed) => {
+                info!(robot = id, "lost robot found a tape: aligning it");
+                Some(routine.fixed(now))
+            }
+            _ => routine.poll(&view, &track, now),
+        };
+        if routine.aligned() {
+            if view.localisation == behaviours::Localisation::Tracking {
+                info!(robot = id, "robot re-localised");
+                self.relocalising.remove(&id);
+                self.tell(id, LocalisationEvent::Found, ctx);
+                return;
+            }
+            warn!(
+                robot = id,
+                "back on the tape, but it does not match: it stays stopped"
+            );
+            routine.give_up();
+        }
+        if let Some(action) = action {
+            self.act(id, action, &world);
+        }
+    }
+}
