@@ -8,6 +8,8 @@
 //! travelled distances stay on that ratio. Moves chain from where the previous one *should* have
 //! ended, so coasting past one target is taken back by the next move.
 
+use core::ops::ControlFlow;
+
 use heapless::Deque;
 use protocol::packets::MoveOutcome;
 use protocol::settings::Settings;
@@ -268,33 +270,9 @@ impl Locomotion {
         let tick_m = tick_m(geometry.wheel_diameter_m, geometry.ticks_per_rev);
         loop {
             if self.active.is_none() {
-                let next = *self.queue.front()?;
-                let (nl, nr) = next.wheel_distances(geometry.wheel_gauge_m);
-                let reverses = |last: i8, d: f32| last != 0 && d != 0.0 && (d < 0.0) != (last < 0);
-                let moving = wheels.left_mps != 0.0 || wheels.right_mps != 0.0;
-                if moving && (reverses(self.last_dir.0, nl) || reverses(self.last_dir.1, nr)) {
-                    // A single-channel encoder cannot see direction: let a wheel that must reverse
-                    // stop first, so its coasting pulses still count in the old direction.
-                    return Some(DriveCommand::default());
+                if let ControlFlow::Break(command) = self.start_next(wheels, settings) {
+                    return command;
                 }
-                let mv = self.queue.pop_front()?;
-                let origin = self
-                    .chain_origin
-                    .unwrap_or((wheels.left_ticks, wheels.right_ticks));
-                let carried = self.carried_mps.take();
-                self.active = Some(Active {
-                    mv,
-                    origin,
-                    target: mv.wheel_distances(geometry.wheel_gauge_m),
-                    progress: 0.0,
-                    entry_mps: carried.unwrap_or(settings.locomotion.min_speed_mps),
-                });
-                // A move the last one flowed into keeps the speed loop's state: resetting it at
-                // cruise speed would dip the wheels at every joint.
-                if carried.is_none() {
-                    self.speed_pid.reset();
-                }
-                self.balance_pid.reset();
             }
             let a = self.active.as_mut()?;
             let (dl, dr) = a.target;
@@ -324,34 +302,14 @@ impl Locomotion {
                 _ => None,
             };
             if fraction * outer + coast >= outer || outer < tick_m * 0.5 {
-                let id = a.mv.id;
-                self.carried_mps = exit_mps;
-                let ticks = |d: f32| libm::roundf(d / tick_m) as i32;
-                self.chain_origin = Some((
-                    a.origin.0.wrapping_add(ticks(dl)),
-                    a.origin.1.wrapping_add(ticks(dr)),
-                ));
-                self.active = None;
-                events(LocomotionEvent::Finished {
-                    id,
-                    outcome: MoveOutcome::Completed,
-                });
-                if self.queue.is_empty() {
-                    self.chain_origin = None;
-                    events(LocomotionEvent::QueueEmpty);
+                let (id, origin) = (a.mv.id, a.origin);
+                if let ControlFlow::Break(()) =
+                    self.complete(id, origin, (dl, dr), tick_m, exit_mps, events)
+                {
                     return None;
                 }
                 continue;
             }
-            let sign = |t: f32| {
-                if t > 0.0 {
-                    1
-                } else if t < 0.0 {
-                    -1
-                } else {
-                    0
-                }
-            };
             self.last_dir = (sign(tl), sign(tr));
             let target_v = profile_between(
                 a.progress * outer,
@@ -376,6 +334,91 @@ impl Locomotion {
                 right_target_mps: target_v * tr,
             });
         }
+    }
+
+    /// Makes the first queued move the running one, from where the last one ideally ended;
+    /// breaks with what [`step`](Self::step) returns instead: `None` with nothing queued, or a
+    /// standstill while a wheel that must reverse still turns.
+    fn start_next(
+        &mut self,
+        wheels: WheelInputs,
+        settings: &Settings,
+    ) -> ControlFlow<Option<DriveCommand>> {
+        let geometry = &settings.geometry;
+        let Some(&next) = self.queue.front() else {
+            return ControlFlow::Break(None);
+        };
+        let (nl, nr) = next.wheel_distances(geometry.wheel_gauge_m);
+        let reverses = |last: i8, d: f32| last != 0 && d != 0.0 && (d < 0.0) != (last < 0);
+        let moving = wheels.left_mps != 0.0 || wheels.right_mps != 0.0;
+        if moving && (reverses(self.last_dir.0, nl) || reverses(self.last_dir.1, nr)) {
+            // A single-channel encoder cannot see direction: let a wheel that must reverse
+            // stop first, so its coasting pulses still count in the old direction.
+            return ControlFlow::Break(Some(DriveCommand::default()));
+        }
+        let Some(mv) = self.queue.pop_front() else {
+            return ControlFlow::Break(None);
+        };
+        let origin = self
+            .chain_origin
+            .unwrap_or((wheels.left_ticks, wheels.right_ticks));
+        let carried = self.carried_mps.take();
+        self.active = Some(Active {
+            mv,
+            origin,
+            target: mv.wheel_distances(geometry.wheel_gauge_m),
+            progress: 0.0,
+            entry_mps: carried.unwrap_or(settings.locomotion.min_speed_mps),
+        });
+        // A move the last one flowed into keeps the speed loop's state: resetting it at
+        // cruise speed would dip the wheels at every joint.
+        if carried.is_none() {
+            self.speed_pid.reset();
+        }
+        self.balance_pid.reset();
+        ControlFlow::Continue(())
+    }
+
+    /// Ends the running move `id`, which started at encoder totals `origin` and drives the wheels
+    /// `(dl, dr)`: the next move starts from its ideal end at `exit_mps`. Breaks when the queue
+    /// has run empty.
+    fn complete(
+        &mut self,
+        id: u16,
+        origin: (i32, i32),
+        (dl, dr): (f32, f32),
+        tick_m: f32,
+        exit_mps: Option<f32>,
+        events: &mut impl FnMut(LocomotionEvent),
+    ) -> ControlFlow<()> {
+        self.carried_mps = exit_mps;
+        let ticks = |d: f32| libm::roundf(d / tick_m) as i32;
+        self.chain_origin = Some((
+            origin.0.wrapping_add(ticks(dl)),
+            origin.1.wrapping_add(ticks(dr)),
+        ));
+        self.active = None;
+        events(LocomotionEvent::Finished {
+            id,
+            outcome: MoveOutcome::Completed,
+        });
+        if self.queue.is_empty() {
+            self.chain_origin = None;
+            events(LocomotionEvent::QueueEmpty);
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+/// The direction a wheel turns for a trajectory ratio `t`: 1 forward, -1 backward, 0 standing.
+fn sign(t: f32) -> i8 {
+    if t > 0.0 {
+        1
+    } else if t < 0.0 {
+        -1
+    } else {
+        0
     }
 }
 

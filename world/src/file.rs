@@ -55,7 +55,7 @@ use nalgebra::Point2;
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::track::{EdgeSpec, Mark, Node, Track, DEFAULT_TAPE_WIDTH_M};
+use super::track::{EdgeSpec, Mark, Node, Track, TrackError, DEFAULT_TAPE_WIDTH_M};
 use super::{Arena, Light, Obstacle, Place, Problem, RadioModel, RobotStart, World};
 
 /// Default floor friction coefficient of an obstacle.
@@ -333,8 +333,8 @@ impl WorldFile {
         })
     }
 
-    /// Builds the track and the world, then checks it.
-    fn to_world(&self, origin: &str) -> Result<World, Problem> {
+    /// The track the file describes, checked.
+    fn build_track(&self) -> Result<Track, TrackError> {
         let nodes = self
             .track
             .nodes
@@ -359,7 +359,12 @@ impl WorldFile {
                 }
             })
             .collect();
-        let track = Track::new(nodes, edges)?;
+        Track::new(nodes, edges)
+    }
+
+    /// Builds the track and the world, then checks it.
+    fn to_world(&self, origin: &str) -> Result<World, Problem> {
+        let track = self.build_track()?;
         let obstacles = self
             .obstacles
             .iter()

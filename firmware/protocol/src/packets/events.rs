@@ -1,0 +1,77 @@
+//! Events the robot reports: moves ending, the queue running empty, obstacles and other robots
+//! seen, the line lost or found, the watchdog, and main loop overruns.
+
+use crate::wire_struct;
+
+wire_struct! {
+    /// A queued move has ended.
+    pub struct MoveFinished {
+        /// The move's id.
+        pub move_id: u16,
+        /// A [`MoveOutcome`](super::MoveOutcome) code.
+        pub outcome: u8,
+    }
+}
+
+wire_struct! {
+    /// The move queue ran empty.
+    pub struct QueueEmpty {}
+}
+
+wire_struct! {
+    /// The robot's own IR frame came back: something that is not a robot is close.
+    pub struct Obstacle {
+        /// A [`Side`](super::Side) code.
+        pub side: u8,
+        /// Weakest power level whose reflection was seen (1 = weakest = closest).
+        pub power_level: u8,
+        /// LED whose light came back.
+        pub led: u8,
+    }
+}
+
+wire_struct! {
+    /// Another robot's IR frame was received (thesis 7.2).
+    pub struct RobotEncountered {
+        /// The other robot's id.
+        pub robot_id: u16,
+        /// A [`Side`](super::Side) code: which of our receivers saw it.
+        pub side: u8,
+        /// The other robot's LED that reached us (tells its orientation).
+        pub led: u8,
+        /// Weakest power level that reached us.
+        pub power_level: u8,
+        /// Estimated heading of the other robot relative to ours, degrees (CCW positive).
+        pub relative_heading_deg: i16,
+        /// Estimated distance, millimetres.
+        pub range_mm: u16,
+        /// Message word carried in its frames (0 = none).
+        pub message: u16,
+    }
+}
+
+wire_struct! {
+    /// The line was lost or found again.
+    pub struct LineEvent {
+        /// 1 = lost, 0 = found.
+        pub lost: u8,
+        /// Line position before the change, micrometres.
+        pub position_um: i16,
+    }
+}
+
+wire_struct! {
+    /// The link watchdog stopped the robot.
+    pub struct WatchdogStop {
+        /// How long the host had been silent, milliseconds.
+        pub silent_ms: u32,
+    }
+}
+
+wire_struct! {
+    /// The main loop ran late by more than one period (thesis 11.1).
+    pub struct LoopOverrun {
+        /// How late, microseconds.
+        pub late_us: u32,
+    }
+}
