@@ -1,0 +1,187 @@
+//! The manoeuvres: where the box is from the finder's sighting, the two slots beside it, the
+//! drives there, the synchronised push and the backing onto the tape.
+
+use super::*;
+
+impl CooperativePush {
+    pub(super) fn helper(&self) -> Option<u16> {
+        self.bots
+            .keys()
+            .copied()
+            .find(|id| Some(*id) != self.finder)
+    }
+
+    pub(super) fn enter(&mut self, phase: Phase, world: &WorldSnapshot) {
+        tracing::debug!(?phase, t = world.time.as_secs_f64(), "cooperative_push");
+        self.phase = phase;
+        self.phase_since = world.time;
+    }
+
+    pub(super) fn fail(&mut self, why: String) -> Vec<Intent> {
+        self.verdict = Some(
+            Verdict::failure(why)
+                .with("pushes", f64::from(self.pushes))
+                .with("phase_reached", self.phase as u8 as f64),
+        );
+        Vec::new()
+    }
+
+    /// The route's moves, tagged with the phase they belong to.
+    pub(super) fn send(&self, id: u16, route: Manoeuvre) -> Vec<Intent> {
+        Intent::moves(id, route.moves, self.phase as u32)
+    }
+
+    /// Along-track distance to the nearest robot ahead of `me`, sensor to sensor.
+    pub(super) fn gap_ahead(&self, me: &RobotView, world: &WorldSnapshot) -> f64 {
+        world
+            .robots
+            .iter()
+            .filter(|o| o.id != me.id)
+            .filter_map(|o| self.track.gap(me, o, true))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Where the box must be, seen from the finder standing behind it.
+    pub(super) fn locate(&self, finder: &RobotView) -> Site {
+        // From where the finder first reported the box at the shortest reach, not from where it
+        // stopped or where the model had it when the sighting arrived: both depend on the
+        // link's latency, a few millimetres that decide whether each pusher still covers the
+        // box's corner.
+        let (p, gap) = match (self.sighted, finder.state.proximity.front_obstacle) {
+            (Some(p), _) => (p, SIGHTED_GAP),
+            (None, 1) => (finder.pose, 0.007),
+            (None, 2) => (finder.pose, 0.022),
+            (None, _) => (finder.pose, 0.03),
+        };
+        let heading = Vector2::new(p.theta.cos(), p.theta.sin());
+        let along = heading;
+        let centre = Point2::new(p.x, p.y) + along * (HALF_LEN + gap + self.box_half);
+        // Pushed to the robot's left: on a counter-clockwise loop, into the loop's middle.
+        let push = Vector2::new(-along.y, along.x);
+        Site {
+            centre,
+            along,
+            push,
+        }
+    }
+
+    /// Distance of a pusher's centre from the box centre, across the track, when waiting.
+    pub(super) fn lane(&self) -> f64 {
+        -(self.box_half + LANE_GAP + HALF_LEN)
+    }
+
+    pub(super) fn slot(&self, id: u16) -> f64 {
+        if self.bots.len() == 1 {
+            0.0
+        } else if Some(id) == self.finder {
+            SLOT_OFFSET
+        } else {
+            -SLOT_OFFSET
+        }
+    }
+
+    /// From `pose` on the tape behind the box: down to an approach lane below the slots, along it,
+    /// then a quarter turn and straight up into the slot. Arriving sideways along the slots'
+    /// line would swing the 48 mm body into the robot already waiting there.
+    pub(super) fn to_slot(&self, id: u16, pose: Pose, site: &Site, back_up: f64) -> Manoeuvre {
+        let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
+        let along_now = here.dot(&site.along) - back_up;
+        let approach = self.lane() - APPROACH_BELOW;
+        let down = site.at(along_now, approach);
+        let below = site.at(self.slot(id), approach);
+        let slot = site.at(self.slot(id), self.lane());
+        Manoeuvre::from(pose, MANOEUVRE_MPS)
+            .straight(-back_up)
+            .to(down.x, down.y)
+            .to(below.x, below.y)
+            .to(slot.x, slot.y)
+    }
+
+    /// After the push: back up until the line sensor finds the tape. Odometry cannot say how far
+    /// that is, because the wheels slipped while pushing; the tape can.
+    pub(super) fn start_backing(&mut self, id: u16) -> Vec<Intent> {
+        let Some(bot) = self.bots.get_mut(&id) else {
+            return Vec::new();
+        };
+        bot.backing = Some(Duration::ZERO);
+        bot.backing_odometer_m = self.odometer.distance_m(id);
+        vec![Intent::WheelSpeeds {
+            robot: id,
+            left: -BACK_MPS,
+            right: -BACK_MPS,
+        }]
+    }
+
+    /// How far the robot has backed since it began to, by its encoders.
+    pub(super) fn backed_m(&self, id: u16) -> f64 {
+        let from = self.bots.get(&id).map_or(0.0, |b| b.backing_odometer_m);
+        self.odometer.distance_m(id) - from
+    }
+
+    /// The sensor (16 mm ahead of the centre) has just crossed the tape backwards: stop, bring
+    /// the centre onto the tape and face along it.
+    pub(super) fn on_tape(&mut self, id: u16, world: &WorldSnapshot) -> Vec<Intent> {
+        let (Some(site), Some(view)) = (self.site, world.robot(id)) else {
+            return Vec::new();
+        };
+        if let Some(bot) = self.bots.get_mut(&id) {
+            bot.backing = None;
+        }
+        let route = Manoeuvre::from(view.pose, MANOEUVRE_MPS)
+            .straight(SENSOR_AHEAD + BACK_OVERSHOOT)
+            .turn_to(Site::heading(site.along));
+        let mut out = vec![Intent::Stop { robot: id }];
+        out.extend(self.send(id, route));
+        out
+    }
+
+    pub(super) fn start_push(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        self.pushes += 1;
+        self.push_started = world.time;
+        self.enter(Phase::Push, world);
+        let ids: Vec<u16> = self.bots.keys().copied().collect();
+        for (&id, b) in self.bots.iter_mut() {
+            b.push_odometer_m = self.odometer.distance_m(id);
+        }
+        // One command per robot in the same reply: the supervisor sends them back to back.
+        let mut out = Vec::new();
+        for id in ids {
+            if let Some(view) = world.robot(id) {
+                let route = Manoeuvre::from(view.pose, PUSH_MPS).straight(LANE_GAP + self.push_m);
+                out.extend(self.send(id, route));
+            }
+        }
+        out
+    }
+
+    /// A close reflection ahead with no robot there: the box.
+    pub(super) fn found_box(&mut self, robot: u16, world: &WorldSnapshot) -> Vec<Intent> {
+        let Some(view) = world.robot(robot) else {
+            return Vec::new();
+        };
+        if self.gap_ahead(view, world) < 0.15 {
+            return Vec::new();
+        }
+        match self.phase {
+            Phase::Approach => {}
+            Phase::Lapping => {
+                if self.pushes >= MAX_PUSHES {
+                    return self.fail(format!(
+                        "robot {robot} still finds the box on the track after {} pushes",
+                        self.pushes
+                    ));
+                }
+                for b in self.bots.values_mut() {
+                    b.lapped_m = 0.0;
+                    b.last_s = None;
+                    b.lap_odometer_m = None;
+                }
+            }
+            _ => return Vec::new(),
+        }
+        self.finder = Some(robot);
+        self.sighted = Some(view.front_close_at.unwrap_or(view.pose));
+        self.enter(Phase::Gather, world);
+        vec![Intent::FollowLine { robot, speed: None }]
+    }
+}

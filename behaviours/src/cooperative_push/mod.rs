@@ -1,0 +1,209 @@
+//! `cooperative_push` (thesis A.2): robots follow the track until one finds it blocked by a box
+//! too heavy for one robot. That robot stops; the other comes up behind it and stops. Both then
+//! leave the tape for two slots side by side on one side of the box, face it, and push it together
+//! with one synchronised command, far enough that it is clear of the tape by more than a body
+//! length. They back onto the tape one after the other and follow it again. A box still found on
+//! the tape afterwards means the push failed; it is tried again, at most twice.
+//!
+//! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
+//! robot ahead in the world model creeps, and stops at the first reflection at the weakest power
+//! level (within 15 mm); where the box is comes from the finder's pose and that reach.
+//!
+//! Success: the box gave way (every pusher's line sensor crossed the tape the box stood on), each
+//! pusher's encoders measured at least 90 % of the push it was sent (134 mm of the default
+//! 12 + 150 mm, slipping or not: a robot that never drove has not pushed), and after the push
+//! the team lapped the track again without finding the box, each robot's encoders measuring at
+//! least 90 % of those laps (1.75 m for the default lap of the push world's loop). A robot whose
+//! wheels are driven for 3 s without an encoder pulse fails the run at once (see
+//! [`behaviour_api::evidence`]).
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use behaviour_api::Pose;
+use nalgebra::{Point2, Vector2};
+use protocol::packets::Side;
+
+use behaviour_api::event::Event;
+use behaviour_api::evidence::{Odometer, EVIDENCE_SHARE};
+use behaviour_api::moves::Manoeuvre;
+use behaviour_api::team::{HeldPolicy, Team};
+use behaviour_api::track_loop::TrackLoop;
+use behaviour_api::{
+    params, Behaviour, BehaviourConfig, Intent, Register, RobotView, Verdict, WorldSnapshot,
+};
+
+mod manoeuvres;
+mod step;
+
+/// Half the body length, metres.
+const HALF_LEN: f64 = world::robot::LENGTH_M / 2.0;
+/// Space between a waiting pusher's front and the box, metres.
+const LANE_GAP: f64 = 0.012;
+/// The approach lane runs this far below the slots: a robot turning there clears one waiting in
+/// the next slot (its corners sweep a 29 mm circle), and one passing leaves 15 mm between their
+/// bodies, room for the safety check's margins and for twice the uncertainty of each pose; any
+/// lower and a turn in the lane would come too near the arena's edge.
+const APPROACH_BELOW: f64 = 0.055;
+/// Pushers stand this far either side of the box's centre line: 16 mm between their bodies, so
+/// that the second can turn into its slot beside the first with room for a few millimetres of
+/// pose error, while each still covers 12 mm of a 40 mm box.
+const SLOT_OFFSET: f64 = 0.024;
+/// The gap between the finder's front and the box in its first state report that sees the box at
+/// the shortest reach (15 mm): the reach less the creep between the IR's sample and the report
+/// (measured in the simulator: 12.7 mm). Pose and reading come from one report, so the link's
+/// latency does not enter.
+const SIGHTED_GAP: f64 = 0.0127;
+/// A follower stops when the robot ahead is this close (sensor to sensor) and goes on past the
+/// second figure.
+const STOP_GAP: f64 = 0.12;
+const GO_GAP: f64 = 0.16;
+/// The helper backs onto the tape only once the finder is this far along it.
+const REJOIN_GAP: f64 = 0.16;
+/// Backing speed towards the tape, and how far the robot runs on after its sensor crosses it
+/// (a report's latency at that speed, then braking).
+const BACK_MPS: f32 = 0.03;
+const BACK_OVERSHOOT: f64 = 0.002;
+/// A tape report counts only once the robot has backed this far: after a push that moved the box
+/// clear, the sensor stands well beyond the tape, and over a wall-clock link a report of the
+/// push's own crossing can arrive late, with the robot still beside the other pusher.
+const MIN_BACK_M: f64 = 0.02;
+/// Line sensor ahead of the robot's centre, metres.
+const SENSOR_AHEAD: f64 = world::robot::LINE_SENSOR_AHEAD_M;
+/// Following speed with an unknown obstacle close ahead.
+const CREEP_MPS: f32 = 0.03;
+/// Speed of manoeuvres off the tape, and of the push.
+const MANOEUVRE_MPS: f32 = 0.08;
+const PUSH_MPS: f32 = 0.05;
+/// A phase that takes longer than this has failed.
+const PHASE_LIMIT: Duration = Duration::from_secs(30);
+/// Attempts before giving up.
+const MAX_PUSHES: u32 = 2;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Phase {
+    /// Following until someone finds the box.
+    Approach,
+    /// The finder has stopped; the helper closes up behind it.
+    Gather,
+    /// The finder drives to its slot.
+    FinderToSlot,
+    /// The helper drives to its slot.
+    HelperToSlot,
+    /// Both push.
+    Push,
+    /// The finder backs onto the tape and follows it.
+    FinderRejoins,
+    /// The helper waits for room, then backs onto the tape.
+    HelperWaits,
+    /// The helper backs onto the tape.
+    HelperRejoins,
+    /// Both follow the track again.
+    Lapping,
+}
+
+/// Where the box is: its estimated centre, the tape's direction there and the push direction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Site {
+    centre: Point2<f64>,
+    along: Vector2<f64>,
+    push: Vector2<f64>,
+}
+
+impl Site {
+    fn at(&self, along: f64, push: f64) -> Point2<f64> {
+        self.centre + self.along * along + self.push * push
+    }
+
+    fn heading(v: Vector2<f64>) -> f64 {
+        v.y.atan2(v.x)
+    }
+}
+
+#[derive(Clone, Debug, Default)]
+struct Bot {
+    /// Loop coordinate at the last snapshot while lapping.
+    last_s: Option<f64>,
+    /// Metres lapped since rejoining.
+    lapped_m: f64,
+    /// The odometer's reading when lapping began.
+    lap_odometer_m: Option<f64>,
+    /// The odometer's reading when the push began.
+    push_odometer_m: f64,
+    /// Backing up towards the tape after the push, since then.
+    backing: Option<Duration>,
+    /// The odometer's reading when backing began.
+    backing_odometer_m: f64,
+    /// The line sensor crossed the tape during the push: the box gave way.
+    crossed_tape: bool,
+}
+
+/// The cooperative pushing behaviour.
+#[derive(Clone, Debug)]
+pub struct CooperativePush {
+    track: TrackLoop,
+    speed: f32,
+    push_m: f64,
+    box_half: f64,
+    laps: f64,
+    bots: BTreeMap<u16, Bot>,
+    phase: Phase,
+    phase_since: Duration,
+    finder: Option<u16>,
+    site: Option<Site>,
+    /// The finder's pose when it first saw the box at the shortest reach.
+    sighted: Option<Pose>,
+    pushes: u32,
+    push_started: Duration,
+    push_time: Option<Duration>,
+    odometer: Odometer,
+    verdict: Option<Verdict>,
+}
+
+params! {
+    /// Parameters of `cooperative_push`.
+    pub struct CooperativePushParams {
+        /// Box width across the push, metres.
+        r#box: f64 = 0.04, 0.01 => 0.1;
+        /// Laps each pusher drives after the push.
+        laps: f64 = 1.0, 0.01 => 20.0;
+        /// How far the pushers drive into the box, metres (their wheels slip under the load, so the box moves less).
+        push: f64 = 0.15, 0.02 => 0.3;
+        /// Following speed, m/s.
+        speed: f32 = 0.1, 0.04 => 0.3;
+    }
+}
+
+impl Register for CooperativePush {
+    type Params = CooperativePushParams;
+
+    /// Builds it.
+    ///
+    /// # Errors
+    /// A track that is not one closed loop, or no robot.
+    fn build(p: CooperativePushParams, cfg: &BehaviourConfig) -> Result<Self, String> {
+        let track = TrackLoop::new(&cfg.track)?;
+        let (speed, push_m, box_m, laps) = (p.speed, p.push, p.r#box, p.laps);
+        if cfg.robots.is_empty() {
+            return Err("needs at least one robot".into());
+        }
+        Ok(Self {
+            track,
+            speed,
+            push_m,
+            box_half: box_m / 2.0,
+            laps,
+            bots: cfg.robots.iter().map(|&id| (id, Bot::default())).collect(),
+            phase: Phase::Approach,
+            phase_since: Duration::ZERO,
+            finder: None,
+            site: None,
+            sighted: None,
+            pushes: 0,
+            push_started: Duration::ZERO,
+            push_time: None,
+            odometer: Odometer::new(),
+            verdict: None,
+        })
+    }
+}

@@ -1,0 +1,374 @@
+//! One step of the team on every snapshot and event: the run's time limits, spacing while
+//! following, and the work of each phase from gathering behind the box to lapping after it.
+
+use super::*;
+
+impl CooperativePush {
+    /// One step of the team: the run's time limits, spacing while following, a box found, and
+    /// the work of the current phase.
+    pub(super) fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        self.odometer.observe(world);
+        if let Some(why) = self.overdue(world, team) {
+            return self.fail(why);
+        }
+        let mut out = self.spacing(world, team);
+        if matches!(self.phase, Phase::Approach | Phase::Lapping) {
+            let found = world.robots.iter().find(|v| {
+                v.state.proximity.front_obstacle == 1
+                    && self.bots.contains_key(&v.id)
+                    && self.gap_ahead(v, world) > 0.15
+            });
+            if let Some(id) = found.map(|v| v.id) {
+                out.extend(self.found_box(id, world));
+                return out;
+            }
+        }
+        let next = match self.phase {
+            Phase::Approach | Phase::FinderRejoins | Phase::HelperRejoins => Ok(Vec::new()),
+            Phase::Gather => self.gather(world, team),
+            Phase::FinderToSlot => Ok(self.finder_to_slot(world, team)),
+            Phase::HelperToSlot => Ok(if self.helper().is_some_and(|h| team.idle(h)) {
+                self.start_push(world)
+            } else {
+                Vec::new()
+            }),
+            Phase::Push => self.pushed(world, team),
+            Phase::HelperWaits => Ok(self.helper_waits(world)),
+            // The verdict ends the run: the spacing intents of this step are not sent.
+            Phase::Lapping => match self.lapping(world) {
+                Ok(true) => return Vec::new(),
+                other => other.map(|_| Vec::new()),
+            },
+        };
+        match next {
+            Err(why) => self.fail(why),
+            Ok(intents) => {
+                out.extend(intents);
+                out
+            }
+        }
+    }
+
+    /// Why the run must stop: a stalled wheel, a phase over its time limit, a robot backing up
+    /// for too long, an aborted manoeuvre.
+    pub(super) fn overdue(&mut self, world: &WorldSnapshot, team: &Team) -> Option<String> {
+        if let Some(stall) = self.odometer.stall() {
+            return Some(stall.to_string());
+        }
+        let limit = match self.phase {
+            // Following is slowed by spacing; three times the lap time at full speed is plenty.
+            Phase::Approach | Phase::Lapping => PHASE_LIMIT.max(Duration::from_secs_f64(
+                3.0 * self.laps * self.track.length_m() / f64::from(self.speed),
+            )),
+            _ => PHASE_LIMIT,
+        };
+        if world.time.saturating_sub(self.phase_since) > limit {
+            return Some(format!(
+                "{:?} took longer than {:.0} s",
+                self.phase,
+                limit.as_secs_f64()
+            ));
+        }
+        let backing_limit = Duration::from_secs_f64((self.push_m + 0.1) / f64::from(BACK_MPS));
+        for b in self.bots.values_mut() {
+            if let Some(since) = b.backing.as_mut() {
+                if *since == Duration::ZERO {
+                    *since = world.time.max(Duration::from_nanos(1));
+                }
+            }
+        }
+        if let Some((id, _)) = self.bots.iter().find(|(_, b)| {
+            b.backing
+                .is_some_and(|since| world.time.saturating_sub(since) > backing_limit)
+        }) {
+            return Some(format!("robot {id} backed up without finding the tape"));
+        }
+        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
+            return Some(format!("robot {id}: a manoeuvre was aborted"));
+        }
+        None
+    }
+
+    /// Spacing while following: never run into the robot ahead.
+    pub(super) fn spacing(&self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
+        if matches!(self.phase, Phase::Approach | Phase::Gather | Phase::Lapping) {
+            for view in &world.robots {
+                if !self.bots.contains_key(&view.id) {
+                    continue;
+                }
+                let following = team.following(view.id);
+                if Some(view.id) == self.finder && self.phase == Phase::Gather {
+                    continue;
+                }
+                let gap = self.gap_ahead(view, world);
+                let mut want = if gap < STOP_GAP {
+                    None
+                } else if gap > GO_GAP || following.is_some() {
+                    Some(self.speed)
+                } else {
+                    following
+                };
+                // Something close ahead that is not a robot: creep, so that the first sighting
+                // at the shortest reach (15 mm) places it to within a few millimetres.
+                let level = view.state.proximity.front_obstacle;
+                if gap > 0.15 && (2..=3).contains(&level) {
+                    want = want.map(|v| v.min(CREEP_MPS));
+                }
+                out.push(Intent::FollowLine {
+                    robot: view.id,
+                    speed: want,
+                });
+            }
+        }
+        out
+    }
+
+    /// Gathered behind the box: once both rest, the box is placed from the finder's sighting and
+    /// the finder sets off for its slot.
+    pub(super) fn gather(
+        &mut self,
+        world: &WorldSnapshot,
+        team: &Team,
+    ) -> Result<Vec<Intent>, String> {
+        let mut out = Vec::new();
+        let settled = world.robots.iter().all(|r| {
+            let w = r.state.wheels;
+            let (l, rr) = (w.left_mps, w.right_mps);
+            team.following(r.id).is_none() && l.abs() < 0.005 && rr.abs() < 0.005
+        });
+        if settled && world.time.saturating_sub(self.phase_since) > Duration::from_millis(300) {
+            let Some(finder) = self.finder.and_then(|f| world.robot(f)) else {
+                return Err("the robot that found the box is gone".into());
+            };
+            let site = self.locate(finder);
+            tracing::debug!(x = site.centre.x, y = site.centre.y, "box located");
+            self.site = Some(site);
+            let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
+            let id = finder.id;
+            out.extend(self.send(id, route));
+            self.enter(Phase::FinderToSlot, world);
+        }
+        Ok(out)
+    }
+
+    /// The finder in its slot: the helper sets off for its own, or, alone, the push starts.
+    pub(super) fn finder_to_slot(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
+        if self.finder.is_some_and(|f| team.idle(f)) {
+            match (self.helper(), self.site) {
+                (Some(h), Some(site)) => {
+                    if let Some(view) = world.robot(h) {
+                        let route = self.to_slot(h, view.pose, &site, 0.0);
+                        out.extend(self.send(h, route));
+                    }
+                    self.enter(Phase::HelperToSlot, world);
+                }
+                _ => out.extend(self.start_push(world)),
+            }
+        }
+        out
+    }
+
+    /// The push ended: it counts only if the box gave way and each pusher drove its share; then
+    /// the finder backs onto the tape first.
+    pub(super) fn pushed(
+        &mut self,
+        world: &WorldSnapshot,
+        team: &Team,
+    ) -> Result<Vec<Intent>, String> {
+        let mut out = Vec::new();
+        if team.all_idle() {
+            self.push_time = Some(world.time.saturating_sub(self.push_started));
+            // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
+            // over the tape it stood on; wheels that only slipped did not.
+            if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
+                return Err(format!(
+                    "the box did not give way: robot {id} never reached the tape behind it \
+                     ({} robot(s) pushing)",
+                    self.bots.len()
+                ));
+            }
+            // The box can give way to one robot's push while the other only stood
+            // beside it: each must have driven its share.
+            let sent = LANE_GAP + self.push_m;
+            let odometer = &self.odometer;
+            let short = self.bots.iter().find_map(|(&id, b)| {
+                let driven = odometer.distance_m(id) - b.push_odometer_m;
+                (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
+            });
+            if let Some((id, driven)) = short {
+                return Err(format!(
+                    "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm \
+                     push it was sent (at least {:.0} mm needed)",
+                    driven * 1e3,
+                    sent * 1e3,
+                    EVIDENCE_SHARE * sent * 1e3
+                ));
+            }
+            if let Some(f) = self.finder {
+                out.extend(self.start_backing(f));
+            }
+            self.enter(Phase::FinderRejoins, world);
+        }
+        Ok(out)
+    }
+
+    /// The helper backs onto the tape once the finder has left it room.
+    pub(super) fn helper_waits(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
+        let mut out = Vec::new();
+        let room = match (self.finder.and_then(|f| world.robot(f)), self.site) {
+            (Some(f), Some(site)) => {
+                let p = Vector2::new(f.pose.x, f.pose.y) - site.centre.coords;
+                p.dot(&site.along) > REJOIN_GAP
+            }
+            _ => true,
+        };
+        if room {
+            if let Some(h) = self.helper() {
+                out.extend(self.start_backing(h));
+            }
+            self.enter(Phase::HelperRejoins, world);
+        }
+        out
+    }
+
+    /// Lapping after the push: each robot's laps along the tape, checked against its encoders;
+    /// the verdict once all have lapped (`true` then).
+    pub(super) fn lapping(&mut self, world: &WorldSnapshot) -> Result<bool, String> {
+        let length = self.track.length_m();
+        for view in &world.robots {
+            let odometer_m = self.odometer.distance_m(view.id);
+            let Some(bot) = self.bots.get_mut(&view.id) else {
+                continue;
+            };
+            bot.lap_odometer_m.get_or_insert(odometer_m);
+            let s = self.track.position(view);
+            if let (Some(before), Some(after)) = (bot.last_s, s) {
+                bot.lapped_m += self.track.forward(before, after).unwrap_or(0.0);
+            }
+            if s.is_some() {
+                bot.last_s = s;
+            }
+        }
+        if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
+            let claimed = self.laps * length;
+            let lapped = |id: u16| {
+                let from = self.bots.get(&id).and_then(|b| b.lap_odometer_m);
+                self.odometer.distance_m(id) - from.unwrap_or(0.0)
+            };
+            let short = self
+                .bots
+                .keys()
+                .map(|&id| (id, lapped(id)))
+                .find(|(_, m)| *m < EVIDENCE_SHARE * claimed);
+            let least = self
+                .bots
+                .keys()
+                .map(|&id| lapped(id))
+                .fold(f64::INFINITY, f64::min);
+            if let Some((id, measured)) = short {
+                return Err(format!(
+                    "robot {id}: its place on the tape went {} lap(s) after the push but \
+                     its encoders measured {measured:.2} m, short of the {:.2} m driving \
+                     them takes",
+                    self.laps,
+                    EVIDENCE_SHARE * claimed
+                ));
+            }
+            let mut v = Verdict::success(format!(
+                "the box gave way to {} robots pushing together ({:.0} mm of drive) and \
+                 the team has lapped {} more time(s) without finding it on the track, \
+                 each robot at least {least:.2} m by its encoders",
+                self.bots.len(),
+                self.push_m * 1e3,
+                self.laps
+            ))
+            .with("pushes", f64::from(self.pushes))
+            .with("least_encoder_lap_m", least);
+            if let Some(t) = self.push_time {
+                v = v.with("push_time_s", t.as_secs_f64());
+            }
+            self.verdict = Some(v);
+            return Ok(true);
+        }
+        Ok(false)
+    }
+}
+
+impl Behaviour for CooperativePush {
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.phase_since = world.time;
+        self.step(world, team)
+    }
+
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.step(world, team)
+    }
+
+    fn on_event(
+        &mut self,
+        robot: u16,
+        event: &Event,
+        world: &WorldSnapshot,
+        team: &mut Team,
+    ) -> Vec<Intent> {
+        match event {
+            Event::Obstacle(o) if o.side == Side::Front && o.is_close() => {
+                self.found_box(robot, world)
+            }
+            // Finishing a rejoin hands the robot back to the tape.
+            Event::MoveFinished { .. } if team.idle(robot) => {
+                let follow = vec![Intent::FollowLine {
+                    robot,
+                    speed: Some(self.speed),
+                }];
+                match self.phase {
+                    Phase::FinderRejoins if Some(robot) == self.finder => {
+                        let next = if self.helper().is_some() {
+                            Phase::HelperWaits
+                        } else {
+                            Phase::Lapping
+                        };
+                        self.enter(next, world);
+                        follow
+                    }
+                    Phase::HelperRejoins if Some(robot) == self.helper() => {
+                        self.enter(Phase::Lapping, world);
+                        follow
+                    }
+                    _ => Vec::new(),
+                }
+            }
+            Event::LineFound if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) => {
+                if self.backed_m(robot) >= MIN_BACK_M {
+                    self.on_tape(robot, world)
+                } else {
+                    Vec::new()
+                }
+            }
+            Event::LineFound if self.phase == Phase::Push => {
+                if let Some(b) = self.bots.get_mut(&robot) {
+                    b.crossed_tape = true;
+                }
+                Vec::new()
+            }
+            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            _ => Vec::new(),
+        }
+    }
+
+    /// A manoeuvre planned around the box is not improvised when the supervisor refuses a step
+    /// of it: the experiment stops with the reason.
+    fn held_policy(&self) -> HeldPolicy {
+        HeldPolicy::Fail
+    }
+
+    fn verdict(&self) -> Option<Verdict> {
+        self.verdict.clone()
+    }
+
+    fn progress(&self) -> Vec<(String, f64)> {
+        vec![("pushes".into(), f64::from(self.pushes))]
+    }
+}
