@@ -348,6 +348,16 @@ impl World {
     /// robots fit inside the arena, unique robot ids, and that nothing starts on top of anything
     /// else. Returns the first problem found, in file order.
     pub fn validate(&self) -> Result<(), Problem> {
+        self.validate_arena()?;
+        self.validate_track()?;
+        self.validate_obstacles()?;
+        self.validate_robots()?;
+        self.check_robot_overlap()?;
+        self.validate_link_and_light()
+    }
+
+    /// The arena's size.
+    fn validate_arena(&self) -> Result<(), Problem> {
         let a = self.arena;
         require(
             positive(a.width_m),
@@ -361,7 +371,12 @@ impl World {
             a.height_m,
             "a positive height in metres",
         )?;
+        Ok(())
+    }
 
+    /// The tape inside the arena: every node, and every arc along its length.
+    fn validate_track(&self) -> Result<(), Problem> {
+        let a = self.arena;
         for (i, n) in self.track.nodes().iter().enumerate() {
             if !a.contains(n.position, 0.0) {
                 return Err(Problem::NodeOutside {
@@ -383,7 +398,12 @@ impl World {
                 return Err(Problem::EdgeOutside { edge: i });
             }
         }
+        Ok(())
+    }
 
+    /// Each obstacle's numbers, and its corners inside the arena.
+    fn validate_obstacles(&self) -> Result<(), Problem> {
+        let a = self.arena;
         for (i, o) in self.obstacles.iter().enumerate() {
             let finite = [o.position.x, o.position.y, o.heading_rad]
                 .iter()
@@ -422,7 +442,12 @@ impl World {
                 return Err(Problem::ObstacleOutside { obstacle: i });
             }
         }
+        Ok(())
+    }
 
+    /// Each robot: a finite pose, a unique id, inside the arena, not on an obstacle.
+    fn validate_robots(&self) -> Result<(), Problem> {
+        let a = self.arena;
         let mut ids = HashSet::with_capacity(self.robots.len());
         for (i, r) in self.robots.iter().enumerate() {
             let finite = [r.position.x, r.position.y, r.heading_rad]
@@ -457,8 +482,11 @@ impl World {
                 });
             }
         }
-        self.check_robot_overlap()?;
+        Ok(())
+    }
 
+    /// The link's and the light's ranges.
+    fn validate_link_and_light(&self) -> Result<(), Problem> {
         let l = self.link;
         require(
             non_negative(l.latency_ms),
