@@ -5,7 +5,7 @@
 //! 1. wait for the wheels to stop;
 //! 2. face across the tape and creep to one side, then back through to the other, as far as the
 //!    model's uncertainty reaches (the model fixes the position across the first tape the
-//!    sensor sees, see [`crate::world_model::Transition::Fixed`]);
+//!    sensor sees, see [`crate::model::Transition::Fixed`]);
 //! 3. stop there, drive the centre onto the tape, face along it and creep forward until the model
 //!    tracks the robot again on that tape.
 //!

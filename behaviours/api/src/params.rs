@@ -1,4 +1,4 @@
-//! Typed behaviour parameters: a behaviour declares its parameters once, with [`params!`](crate::params),
+//! Typed behaviour parameters: a behaviour declares its parameters once, with [`params!`](macro@crate::params),
 //! as a struct with a default, a unit and a range per field; `--param key=value` pairs and sweep
 //! values are parsed into it by name (each value through serde from its plain text), so an unknown
 //! key or a bad value is refused before any robot moves, and `coordinator --list-behaviours`
@@ -82,7 +82,7 @@ fn accepted(known: &[&'static str]) -> String {
 }
 
 /// A behaviour's parameters: a struct with a [`Default`], filled from `key=value` text by
-/// [`Params::from_pairs`]. Declare one with [`params!`](crate::params) rather than by hand.
+/// [`Params::from_pairs`]. Declare one with [`params!`](macro@crate::params) rather than by hand.
 pub trait Params: Default + Clone + fmt::Debug + Send + Sync + 'static {
     /// Every parameter, in declaration order.
     fn describe() -> Vec<ParamInfo>;

@@ -27,7 +27,7 @@ pub struct BehaviourConfig {
 /// A behaviour built from typed parameters: what a registry needs to check its parameters
 /// before any robot moves, list them, and build it.
 pub trait Register: Behaviour + Sized {
-    /// Its parameters, declared with [`params!`](crate::params).
+    /// Its parameters, declared with [`params!`](macro@crate::params).
     type Params: Params;
 
     /// Builds it for this experiment.

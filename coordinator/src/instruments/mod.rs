@@ -1,5 +1,5 @@
 //! Everything around a run, behind one door: the experiment asks for [`Instruments`] and gets a
-//! [`Run`] back, and calls its [`Hooks`] at a few points of [`crate::run_with`]. Behind it: the
+//! [`Run`] back, and calls its hooks at a few points of [`crate::run_with`]. Behind it: the
 //! MCAP recorder (a tap on every link and the observer's snapshots), replay's links and check,
 //! recovery of a cut recording, the control panel, trajectory plots, and sweeps of many runs
 //! (each a child process of the `coordinator` binary).
