@@ -14,7 +14,7 @@ use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::Discoverer;
 use robot_actor::{Pose, Robot, RobotConfig, StateUpdated};
 use simulator::runtime::{self, Pace};
-use simulator::world::presets;
+use world::presets;
 use simulator::{SimConfig, Simulation};
 
 /// Prints the odometry pose on each new state (the thesis's `onNewState`).

@@ -202,7 +202,7 @@ async fn measure(links: usize, wall: Duration) -> Row {
     let feed: Feed = Arc::new(Mutex::new(Vec::new()));
     let epoch = Instant::now();
     let taken = Arc::new(Taken::default());
-    let model = WorldModel::new(Arc::new(simulator::world::Track::default()));
+    let model = WorldModel::new(Arc::new(world::Track::default()));
     for id in 1..=links as u16 {
         model.add(id);
     }

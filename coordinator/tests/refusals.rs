@@ -12,7 +12,7 @@ use protocol::slip::{self, SlipDecoder};
 use protocol::{Frame, PacketType, Settings, MAX_PACKET};
 use simulator::runtime::Pace;
 use simulator::serve::serve;
-use simulator::world::presets;
+use world::presets;
 use simulator::{SimConfig, Simulation};
 
 fn coordinator(args: &[&str]) -> Output {

@@ -6,7 +6,7 @@ use std::sync::mpsc;
 
 use simulator::runtime::{Pace, Truth};
 use simulator::serve::serve;
-use simulator::world::presets;
+use world::presets;
 use simulator::{BodyFault, SimConfig, Simulation};
 
 /// Serves the `open` world's first two robots over TCP, one of them with `fault`, runs

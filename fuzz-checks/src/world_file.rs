@@ -3,7 +3,7 @@
 //! Properties: no panic; a refusal reads `ORIGIN:LINE: MESSAGE` with a line inside the text and a
 //! non-empty message, so a user can always find what is wrong.
 
-use simulator::world::file::{parse, WorldError};
+use world::file::{parse, WorldError};
 
 /// The origin the check passes to the parser.
 const ORIGIN: &str = "fuzz.toml";

@@ -46,7 +46,7 @@ impl Handler<RobotEvent> for LossWatch {
 
 #[actix_rt::test]
 async fn a_robot_behind_a_gateway_is_driven_over_zenoh_and_lost_when_the_gateway_goes() {
-    let world = simulator::world::presets::preset("open").expect("a preset");
+    let world = world::presets::preset("open").expect("a preset");
     let sim = Simulation::new(world, SimConfig::default());
     let (served, sim, _task) = simulator::serve::serve(sim, "127.0.0.1", 0, Pace::WallClock)
         .await

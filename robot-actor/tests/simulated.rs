@@ -17,7 +17,7 @@ use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
 use robot_actor::odometry::Pose;
 use robot_actor::{setting, CallError, Robot, RobotConfig, RobotError, StateUpdated};
 use simulator::runtime::{self, Pace, SimHandle};
-use simulator::world::{file, presets};
+use world::{file, presets};
 use simulator::{SimConfig, Simulation};
 use tokio::sync::{mpsc, Notify};
 

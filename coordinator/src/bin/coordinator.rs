@@ -15,7 +15,7 @@ use behaviours::Registry;
 use clap::{Parser, ValueEnum};
 use coordinator::instruments::panel::PanelOptions;
 use coordinator::{Instruments, Plan, Transport};
-use simulator::world::presets;
+use world::presets;
 
 /// Run a supervised multi-robot experiment.
 #[derive(Parser, Debug)]
@@ -373,7 +373,7 @@ fn run_plan(args: &Args, plan: Plan, registry: &Registry) -> Result<bool> {
 }
 
 /// The world a plan runs in, for the plot.
-fn plan_world(plan: &Plan, registry: &Registry) -> Result<simulator::world::World> {
+fn plan_world(plan: &Plan, registry: &Registry) -> Result<world::World> {
     let name = match &plan.world {
         Some(w) => w.clone(),
         None => registry

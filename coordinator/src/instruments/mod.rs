@@ -22,7 +22,7 @@ use robot_actor::link::Discovered;
 use robot_actor::Robot;
 use serde_json::json;
 use simulator::runtime::SimHandle;
-use simulator::world::World;
+use world::World;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 

@@ -17,7 +17,7 @@ use behaviours::RobotView;
 use robot_actor::{RobotEvent, RobotEventKind, StateUpdated};
 use serde_json::{json, Value};
 use simulator::runtime::SimHandle;
-use simulator::world::Track;
+use world::Track;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::robot;

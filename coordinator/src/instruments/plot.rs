@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{anyhow, Context as _, Result};
 use plotters::prelude::*;
-use simulator::world::World;
+use world::World;
 
 use crate::instruments::observer::{robot_colour, track_lines};
 
@@ -120,7 +120,7 @@ mod tests {
 
     #[test]
     fn plot_has_the_tape_and_each_robot() {
-        let world = simulator::world::presets::preset("oval").unwrap();
+        let world = world::presets::preset("oval").unwrap();
         let mut trails = BTreeMap::new();
         trails.insert(1u16, vec![[0.3, 0.15], [0.4, 0.15], [0.5, 0.16]]);
         trails.insert(2u16, vec![[0.3, 0.45], [0.4, 0.45]]);

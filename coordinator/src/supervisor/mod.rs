@@ -13,7 +13,7 @@ use behaviours::{
 };
 use robot_actor::actor::{Command, Enqueue};
 use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateBatch, StateUpdated};
-use simulator::world::Track;
+use world::Track;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tracing::{debug, info, warn};
