@@ -14,8 +14,8 @@ use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::Discoverer;
 use robot_actor::{Pose, Robot, RobotConfig, StateUpdated};
 use simulator::runtime::{self, Pace};
-use world::presets;
 use simulator::{SimConfig, Simulation};
+use world::presets;
 
 /// Prints the odometry pose on each new state (the thesis's `onNewState`).
 struct PosePrinter;

@@ -371,12 +371,29 @@ impl TokenRing {
         Vec::new()
     }
 
+    /// One step of the team: the run's limits, the team turning round, and each robot's
+    /// following, detour or held move.
     fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
         if let Some(stall) = self.odometer.stall() {
             return self.fail(stall.to_string());
         }
+        if let Some(why) = self.overdue(world, team) {
+            return self.fail(why);
+        }
+        if let Some(out) = self.turn_round(world, team) {
+            return out;
+        }
         let mut out = Vec::new();
+        for (k, id) in self.order.clone().into_iter().enumerate() {
+            self.drive(k, id, world, team, &mut out);
+        }
+        out
+    }
+
+    /// Why the run must stop: no token pass for too long, or an aborted manoeuvre. Notes which
+    /// robots stand still.
+    fn overdue(&mut self, world: &WorldSnapshot, team: &Team) -> Option<String> {
         for view in &world.robots {
             if let Some(bot) = self.bots.get_mut(&view.id) {
                 let w = view.state.wheels;
@@ -388,15 +405,22 @@ impl TokenRing {
             }
         }
         if world.time.saturating_sub(self.last_pass) > PASS_LIMIT {
-            return self.fail(format!(
+            return Some(format!(
                 "no token pass for {} s after {} passes",
                 PASS_LIMIT.as_secs(),
                 self.passes
             ));
         }
         if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
-            return self.fail(format!("robot {id}: a manoeuvre was aborted"));
+            return Some(format!("robot {id}: a manoeuvre was aborted"));
         }
+        None
+    }
+
+    /// The whole team turning round: once the token has been round and nobody is mid-detour,
+    /// every robot faces about; while it turns, only its moves go out.
+    fn turn_round(&mut self, world: &WorldSnapshot, team: &Team) -> Option<Vec<Intent>> {
+        let mut out = Vec::new();
         if self.turning {
             if self.order.iter().all(|id| !self.busy(*id, team)) {
                 self.turning = false;
@@ -406,7 +430,7 @@ impl TokenRing {
                 for id in self.order.clone() {
                     out.extend(self.pump(id, world, team));
                 }
-                return out;
+                return Some(out);
             }
         }
         // Turn the whole team round once the token has been round, when nobody is mid-detour.
@@ -419,84 +443,95 @@ impl TokenRing {
                     out.extend(self.send(id, &[Leg::Face(view.pose.theta + PI)], world, team));
                 }
             }
-            return out;
+            return Some(out);
         }
-        for (k, id) in self.order.clone().into_iter().enumerate() {
-            let Some(view) = world.robot(id) else {
-                continue;
-            };
-            let Some(bot) = self.bots.get(&id) else {
-                continue;
-            };
-            if !team.idle(id) {
-                continue;
+        None
+    }
+
+    /// Robot `id` (the `k`-th in the ring): a held move tried again, its staggered start, a
+    /// detour round an unknown obstacle, or its following speed kept to the gap ahead. `out`
+    /// holds what this step has sent so far.
+    fn drive(
+        &mut self,
+        k: usize,
+        id: u16,
+        world: &WorldSnapshot,
+        team: &Team,
+        out: &mut Vec<Intent>,
+    ) {
+        let Some(view) = world.robot(id) else {
+            return;
+        };
+        let Some(bot) = self.bots.get(&id) else {
+            return;
+        };
+        if !team.idle(id) {
+            return;
+        }
+        if !bot.legs.is_empty() {
+            // A held move: try it again.
+            out.extend(self.pump(id, world, team));
+            return;
+        }
+        if !bot.started {
+            if world.time < START_STAGGER * k as u32 {
+                return;
             }
-            if !bot.legs.is_empty() {
-                // A held move: try it again.
-                out.extend(self.pump(id, world, team));
-                continue;
+            if let Some(b) = self.bots.get_mut(&id) {
+                b.started = true;
             }
-            if !bot.started {
-                if world.time < START_STAGGER * k as u32 {
-                    continue;
-                }
-                if let Some(b) = self.bots.get_mut(&id) {
-                    b.started = true;
-                }
-            }
-            let ahead = self.ahead(view, world);
-            let gap = ahead
-                .map_or(f64::INFINITY, |(_, d)| d)
-                .min(self.sighted_gap(id, world.time));
-            let level = view.state.proximity.front_obstacle;
-            let unknown = level > 0 && !self.reflection_explained(view, world, level);
-            if level == 1 && unknown {
-                out.push(Intent::FollowLine {
-                    robot: id,
-                    speed: None,
-                });
-                // One detour at a time: the box's surroundings hold one robot off the tape. A
-                // move sent in this same step counts too (the team's books see it once this
-                // step returns).
-                let moving = |o: u16| {
-                    out.iter()
-                        .any(|i| matches!(i, Intent::Move { robot, .. } if *robot == o))
-                };
-                let someone_detouring = self
-                    .order
-                    .iter()
-                    .any(|o| *o != id && (self.busy(*o, team) || moving(*o)));
-                // The tape past the box, where the detour comes back, must be free.
-                let (s, c) = view.pose.theta.sin_cos();
-                let rejoin = (view.pose.x + 0.12 * c, view.pose.y + 0.12 * s);
-                let rejoin_clear = world
-                    .robots
-                    .iter()
-                    .filter(|r| r.id != id)
-                    .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
-                if !someone_detouring && rejoin_clear {
-                    out.push(Intent::Stop { robot: id });
-                    out.extend(self.detour(view, world, team));
-                }
-                continue;
-            }
-            let current = team.following(id);
-            let mut want = if gap < STOP_GAP {
-                None
-            } else if gap > GO_GAP || current.is_some() {
-                Some(self.speed_of(id))
-            } else {
-                current
-            };
-            if unknown && (2..=3).contains(&level) {
-                want = want.map(|v| v.min(CREEP_MPS));
-            }
+        }
+        let ahead = self.ahead(view, world);
+        let gap = ahead
+            .map_or(f64::INFINITY, |(_, d)| d)
+            .min(self.sighted_gap(id, world.time));
+        let level = view.state.proximity.front_obstacle;
+        let unknown = level > 0 && !self.reflection_explained(view, world, level);
+        if level == 1 && unknown {
             out.push(Intent::FollowLine {
                 robot: id,
-                speed: want,
+                speed: None,
             });
+            // One detour at a time: the box's surroundings hold one robot off the tape. A
+            // move sent in this same step counts too (the team's books see it once this
+            // step returns).
+            let moving = |o: u16| {
+                out.iter()
+                    .any(|i| matches!(i, Intent::Move { robot, .. } if *robot == o))
+            };
+            let someone_detouring = self
+                .order
+                .iter()
+                .any(|o| *o != id && (self.busy(*o, team) || moving(*o)));
+            // The tape past the box, where the detour comes back, must be free.
+            let (s, c) = view.pose.theta.sin_cos();
+            let rejoin = (view.pose.x + 0.12 * c, view.pose.y + 0.12 * s);
+            let rejoin_clear = world
+                .robots
+                .iter()
+                .filter(|r| r.id != id)
+                .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
+            if !someone_detouring && rejoin_clear {
+                out.push(Intent::Stop { robot: id });
+                out.extend(self.detour(view, world, team));
+            }
+            return;
         }
-        out
+        let current = team.following(id);
+        let mut want = if gap < STOP_GAP {
+            None
+        } else if gap > GO_GAP || current.is_some() {
+            Some(self.speed_of(id))
+        } else {
+            current
+        };
+        if unknown && (2..=3).contains(&level) {
+            want = want.map(|v| v.min(CREEP_MPS));
+        }
+        out.push(Intent::FollowLine {
+            robot: id,
+            speed: want,
+        });
     }
 }
 

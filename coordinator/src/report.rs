@@ -367,6 +367,17 @@ impl Report {
 
 impl fmt::Display for Report {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.fmt_verdict(f)?;
+        self.fmt_robots(f)?;
+        self.fmt_ground_truth(f)?;
+        self.fmt_run(f)
+    }
+}
+
+impl Report {
+    /// The verdict line, why the ground truth overruled it, its summary and figures, and the
+    /// robot table's header.
+    fn fmt_verdict(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let verdict = if self.success() { "SUCCESS" } else { "FAILURE" };
         writeln!(
             f,
@@ -384,6 +395,11 @@ impl fmt::Display for Report {
             f,
             "  robot   odometry x,y [mm]   truth x,y [mm]   error [mm]  heading err [deg]  model err [mm, deg]  worst model err [mm, deg]  lost [n, s]  worst σ [mm]  driven [m]  rtt [ms]  in/out packets  losses"
         )?;
+        Ok(())
+    }
+
+    /// One line per robot: odometry, truth, the model's errors, localisation and link figures.
+    fn fmt_robots(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         for r in &self.robots {
             let truth = r.truth.map_or("        -        ".to_string(), |t| {
                 format!("{:7.1},{:7.1}", t.x * 1e3, t.y * 1e3)
@@ -413,6 +429,11 @@ impl fmt::Display for Report {
                 r.link.losses,
             )?;
         }
+        Ok(())
+    }
+
+    /// Where the obstacles ended, and the simulator's contacts and model errors.
+    fn fmt_ground_truth(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         for (i, o) in self.obstacles.iter().enumerate() {
             writeln!(
                 f,
@@ -445,6 +466,11 @@ impl fmt::Display for Report {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// Localisation, encounters, held intents, link news, and the run's times and memory.
+    fn fmt_run(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
             "  localisation: {} lost episodes, {:.2} s lost in all; worst uncertainty {:.1} mm",

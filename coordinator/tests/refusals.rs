@@ -12,8 +12,8 @@ use protocol::slip::{self, SlipDecoder};
 use protocol::{Frame, PacketType, Settings, MAX_PACKET};
 use simulator::runtime::Pace;
 use simulator::serve::serve;
-use world::presets;
 use simulator::{SimConfig, Simulation};
+use world::presets;
 
 fn coordinator(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_coordinator"))

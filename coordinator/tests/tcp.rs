@@ -6,8 +6,8 @@ use std::sync::mpsc;
 
 use simulator::runtime::{Pace, Truth};
 use simulator::serve::serve;
-use world::presets;
 use simulator::{BodyFault, SimConfig, Simulation};
+use world::presets;
 
 /// Serves the `open` world's first two robots over TCP, one of them with `fault`, runs
 /// `square_walk` on them through the coordinator binary, and returns its output and the truth.

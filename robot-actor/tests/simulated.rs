@@ -17,9 +17,9 @@ use robot_actor::link::{Connector, Link, LinkCounters, LinkError, LinkEvent};
 use robot_actor::odometry::Pose;
 use robot_actor::{setting, CallError, Robot, RobotConfig, RobotError, StateUpdated};
 use simulator::runtime::{self, Pace, SimHandle};
-use world::{file, presets};
 use simulator::{SimConfig, Simulation};
 use tokio::sync::{mpsc, Notify};
+use world::{file, presets};
 
 /// Runs `f` in an actix system on a current-thread tokio runtime whose clock is paused: time
 /// advances only when every task waits, so simulated and host time are one.

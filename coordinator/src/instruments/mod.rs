@@ -22,9 +22,9 @@ use robot_actor::link::Discovered;
 use robot_actor::Robot;
 use serde_json::json;
 use simulator::runtime::SimHandle;
-use world::World;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
+use world::World;
 
 pub mod observer;
 pub mod panel;

@@ -17,10 +17,10 @@ use behaviours::RobotView;
 use robot_actor::{RobotEvent, RobotEventKind, StateUpdated};
 use serde_json::{json, Value};
 use simulator::runtime::SimHandle;
-use world::Track;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::robot;
+use world::Track;
 
 use crate::instruments::record::{fox_pose, fox_time, layout_json, Recorder, Topic};
 use world_model::WorldModel;

@@ -13,10 +13,10 @@ use behaviours::{
 };
 use robot_actor::actor::{Command, Enqueue};
 use robot_actor::{Pose, Robot, RobotEvent, RobotEventKind, StateBatch, StateUpdated};
-use world::Track;
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tracing::{debug, info, warn};
+use world::Track;
 
 use crate::behaviour_actor::{
     BehaviourActor, FromRobot, Held, Localised, Panicked, Snapshot, Start,
