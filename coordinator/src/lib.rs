@@ -21,12 +21,13 @@ pub mod instruments;
 pub mod plan;
 pub mod report;
 pub mod supervisor;
+pub mod twin;
 
 pub use experiment::{run, run_with};
 pub use instruments::{Instruments, Run};
 pub use plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
 pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};
-pub use simulator::BodyFault;
+pub use twin::BodyFault;
 /// The estimation layer the supervisor keeps (its own crate, re-exported for the benches).
 pub use world_model;
 

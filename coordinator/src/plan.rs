@@ -3,8 +3,8 @@
 
 use std::time::Duration;
 
+use crate::twin::BodyFault;
 use anyhow::{anyhow, bail, Result};
-use simulator::BodyFault;
 use world::{file, presets, World};
 
 /// Where the robots come from.
@@ -246,9 +246,9 @@ pub struct Kick {
     pub sideways_m: f64,
 }
 
-impl From<simulator::cli::KickArg> for Kick {
+impl From<world::cli::KickArg> for Kick {
     /// The kick `--kick ID:SECONDS:DX,DY[,DEG]` gives (no sideways shove).
-    fn from(k: simulator::cli::KickArg) -> Self {
+    fn from(k: world::cli::KickArg) -> Self {
         Self {
             robot: k.robot,
             at: k.at,

@@ -15,7 +15,7 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
 
 /// A kick as `coordinator --kick` takes it.
 fn kick(spec: &str) -> coordinator::Kick {
-    simulator::cli::parse_kick(spec).expect("a kick").into()
+    world::cli::parse_kick(spec).expect("a kick").into()
 }
 
 fn run(plan: Plan, registry: &Registry) -> Report {

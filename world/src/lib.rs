@@ -8,6 +8,7 @@
 
 #![warn(missing_docs)]
 
+pub mod cli;
 pub mod file;
 #[cfg(feature = "graph")]
 pub mod graph;

@@ -61,10 +61,10 @@ struct Args {
     /// Physics rate of simulated robots in Hz: 1000, 500, 250 or 200. Firmware deadlines, link
     /// packets and encoder edges keep the 1 kHz clock; below 1000 the bodies move in coarser steps
     /// and the line sensor sees the floor interpolated between them (faster, a little less exact).
-    #[arg(long = "physics-hz", value_name = "HZ", default_value = "1000", value_parser = simulator::cli::parse_physics_hz)]
+    #[arg(long = "physics-hz", value_name = "HZ", default_value = "1000", value_parser = world::cli::parse_physics_hz)]
     physics_every: u32,
     /// Time limit in seconds (simulated time when simulating), more than 0 and at most 1000000.
-    #[arg(long, default_value = "600", value_parser = simulator::cli::parse_duration, allow_negative_numbers = true)]
+    #[arg(long, default_value = "600", value_parser = world::cli::parse_duration, allow_negative_numbers = true)]
     duration: Duration,
     /// Also write the report as JSON to this file.
     #[arg(long)]
@@ -93,8 +93,8 @@ struct Args {
     plot: Option<PathBuf>,
     /// Kick simulated robot ID at SECONDS of experiment time by DX,DY metres and DEG degrees
     /// (repeatable): its body moves at once and its odometry never learns of it.
-    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
-    kick: Vec<simulator::cli::KickArg>,
+    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = world::cli::parse_kick)]
+    kick: Vec<world::cli::KickArg>,
     /// Write robot setting PATH (a field of the robot's settings, e.g. watchdog.timeout_ms) to
     /// VALUE on every robot before the experiment starts (repeatable); each robot gets it again
     /// after a reconnect. A value the robot refuses ends the run before it starts.
@@ -297,7 +297,7 @@ fn plan(args: &Args) -> Result<Plan> {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    simulator::cli::init_logging();
+    world::cli::init_logging();
     let mut registry = Registry::builtin();
     coordinator::instruments::panel::register_teleop(&mut registry);
     if args.list_behaviours {

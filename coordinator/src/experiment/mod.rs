@@ -11,10 +11,13 @@ use behaviours::{BehaviourConfig, Entry, Registry};
 use protocol::packets::Hello;
 use robot_actor::actor::SetOdometryOrigin;
 use robot_actor::discover::StaticList;
+#[cfg(feature = "sim")]
 use robot_actor::link::sim::SimDiscoverer;
 use robot_actor::link::{Discovered, Discoverer};
 use robot_actor::{Pose, Robot, RobotConfig, Shards};
+#[cfg(feature = "sim")]
 use simulator::runtime::{self, Pace};
+#[cfg(feature = "sim")]
 use simulator::{SimConfig, Simulation};
 use tokio::sync::oneshot;
 use world::{Track, World};
@@ -24,6 +27,7 @@ use crate::instruments::{Hooks, Run};
 use crate::plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
 use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
 use crate::supervisor::{Abort, Outcome, Supervisor};
+use crate::twin::{SimHandle, Truth};
 use world_model::safety::Safety;
 use world_model::WorldModel;
 

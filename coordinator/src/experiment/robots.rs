@@ -9,11 +9,7 @@ pub(super) async fn find_robots(
     plan: &Plan,
     world: &World,
     hooks: &mut Hooks,
-) -> Result<(
-    Vec<Discovered>,
-    Option<Vec<Pose>>,
-    Option<runtime::SimHandle>,
-)> {
+) -> Result<(Vec<Discovered>, Option<Vec<Pose>>, Option<SimHandle>)> {
     Ok(match &plan.transport {
         Transport::Sim => {
             let origins = start_poses(world);
@@ -69,11 +65,12 @@ pub(super) fn start_poses(world: &World) -> Vec<Pose> {
         .collect()
 }
 
+#[cfg(feature = "sim")]
 /// Starts the world's simulation with the plan's seed, pace and body faults, and finds its robots.
 pub(super) async fn start_simulation(
     plan: &Plan,
     world: &World,
-) -> Result<(runtime::SimHandle, Vec<Discovered>)> {
+) -> Result<(SimHandle, Vec<Discovered>)> {
     if plan.physics_every >= 4 && !world.obstacles.is_empty() {
         tracing::warn!(
             physics_hz = plan.physics_hz(),
@@ -107,8 +104,18 @@ pub(super) async fn start_simulation(
     Ok((handle, found))
 }
 
+/// A coordinator built without the simulator cannot run simulated robots.
+#[cfg(not(feature = "sim"))]
+pub(super) async fn start_simulation(_: &Plan, _: &World) -> Result<(SimHandle, Vec<Discovered>)> {
+    bail!(
+        "simulated robots need the coordinator built with its cargo feature `sim` (on by \
+         default): give --transport tcp and robot addresses instead"
+    )
+}
+
+#[cfg(feature = "sim")]
 /// Schedules the plan's link cuts and kicks on the simulation's clock.
-pub(super) fn inject_faults(h: &runtime::SimHandle, faults: &[LinkFault], kicks: &[(usize, Kick)]) {
+pub(super) fn inject_faults(h: &SimHandle, faults: &[LinkFault], kicks: &[(usize, Kick)]) {
     for fault in faults.iter().copied() {
         let h = h.clone();
         tokio::spawn(async move {
@@ -144,6 +151,12 @@ pub(super) fn inject_faults(h: &runtime::SimHandle, faults: &[LinkFault], kicks:
             }
         });
     }
+}
+
+/// Without the simulator there is no simulation to inject faults into.
+#[cfg(not(feature = "sim"))]
+pub(super) fn inject_faults(h: &SimHandle, _: &[LinkFault], _: &[(usize, Kick)]) {
+    match *h {}
 }
 
 /// Starts a robot actor per discovered robot and waits for every hello at once, at most

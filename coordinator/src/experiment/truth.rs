@@ -7,7 +7,7 @@ use world::robot::LINE_SENSOR_AHEAD_M as SENSOR_AHEAD_M;
 use world::wrap_angle as wrap_rad;
 
 /// The simulation's ground truth once stop commands have had time to reach the robots.
-pub(super) async fn ground_truth(sim: Option<&runtime::SimHandle>) -> Option<runtime::Truth> {
+pub(super) async fn ground_truth(sim: Option<&SimHandle>) -> Option<Truth> {
     tokio::time::sleep(Duration::from_millis(300)).await;
     match sim {
         Some(h) => h.truth().await,
@@ -18,7 +18,7 @@ pub(super) async fn ground_truth(sim: Option<&runtime::SimHandle>) -> Option<run
 /// What a run left to report once its robots stopped.
 pub(super) struct Ending {
     pub(super) outcome: Outcome,
-    pub(super) truth: Option<runtime::Truth>,
+    pub(super) truth: Option<Truth>,
     pub(super) model_errors: ModelErrors,
     pub(super) experiment_time: Duration,
 }
@@ -137,7 +137,7 @@ pub(super) struct ModelSampler {
 
 impl ModelSampler {
     /// Starts sampling when there is a simulation to take the truth from.
-    pub(super) fn start(sim: Option<&runtime::SimHandle>, model: &WorldModel) -> Self {
+    pub(super) fn start(sim: Option<&SimHandle>, model: &WorldModel) -> Self {
         let (stop, stopped) = oneshot::channel();
         let task = sim
             .cloned()
@@ -159,7 +159,7 @@ impl ModelSampler {
 /// fires or the simulation ends. A robot counts from its first report on: before it the model has
 /// no pose of its own for it.
 pub(super) async fn sample_model_errors(
-    h: runtime::SimHandle,
+    h: SimHandle,
     views: Arc<dashmap::DashMap<u16, Arc<behaviours::RobotView>>>,
     mut stop: oneshot::Receiver<()>,
 ) -> ModelErrors {
@@ -203,7 +203,7 @@ pub(super) async fn sample_model_errors(
     errors
 }
 
-pub(super) fn obstacle_reports(world: &World, truth: &runtime::Truth) -> Vec<ObstacleReport> {
+pub(super) fn obstacle_reports(world: &World, truth: &Truth) -> Vec<ObstacleReport> {
     world
         .obstacles
         .iter()

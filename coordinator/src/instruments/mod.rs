@@ -15,13 +15,13 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::twin::SimHandle;
 use actix::{Actor, Addr};
 use anyhow::{Context as _, Result};
 use behaviours::Verdict;
 use robot_actor::link::Discovered;
 use robot_actor::Robot;
 use serde_json::json;
-use simulator::runtime::SimHandle;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::World;

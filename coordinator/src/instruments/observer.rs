@@ -12,11 +12,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::twin::SimHandle;
 use actix::prelude::*;
 use behaviours::RobotView;
 use robot_actor::{RobotEvent, RobotEventKind, StateUpdated};
 use serde_json::{json, Value};
-use simulator::runtime::SimHandle;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::robot;
@@ -88,7 +88,7 @@ pub struct TakeObserved;
 
 #[derive(Message)]
 #[rtype(result = "()")]
-struct Truth(Option<simulator::runtime::Truth>);
+struct Truth(Option<crate::twin::Truth>);
 
 /// The observer actor.
 pub struct Observer {
@@ -100,7 +100,7 @@ pub struct Observer {
     wheel_samples: BTreeMap<u16, Vec<[f64; 5]>>,
     encounters: Vec<Value>,
     track_lines: Vec<Vec<[f64; 2]>>,
-    truth: Option<simulator::runtime::Truth>,
+    truth: Option<crate::twin::Truth>,
     t0: Instant,
     truth_pending: bool,
 }

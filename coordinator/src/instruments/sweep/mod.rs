@@ -64,7 +64,7 @@ pub struct SweepArgs {
     #[arg(long = "kick", value_name = "ID:SECONDS:DX,DY[,DEG]")]
     pub kicks: Vec<String>,
     /// Each run's time limit in simulated seconds (default: the coordinator's).
-    #[arg(long, value_parser = simulator::cli::parse_seconds, allow_negative_numbers = true)]
+    #[arg(long, value_parser = world::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
     /// Runs at a time (default: the number of cores).
     #[arg(long)]
@@ -280,7 +280,7 @@ impl Definition {
         let physics_hz = parse_list("--physics-hz", &a.physics_hz)?
             .iter()
             .map(|s| {
-                simulator::cli::parse_physics_hz(s)
+                world::cli::parse_physics_hz(s)
                     .map(|every| 1000 / every)
                     .map_err(|e| anyhow::anyhow!("--physics-hz {s:?}: {e}"))
             })
@@ -290,7 +290,7 @@ impl Definition {
             let k = k.trim();
             if k != "none" {
                 for part in k.split('+') {
-                    simulator::cli::parse_kick(part.trim())
+                    world::cli::parse_kick(part.trim())
                         .map_err(|e| anyhow::anyhow!("--kick {k:?}: {e}"))?;
                 }
             }
