@@ -5,7 +5,7 @@
 //! will leave it. Each footprint also grows by twice its robot's position uncertainty (1σ), so a
 //! robot the world model is unsure of gets a wider berth.
 
-use behaviour_api::{Intent, MoveCommand, Pose, WorldSnapshot};
+use behaviour_api::{Intent, MoveCommand, Pose, RobotView, WorldSnapshot};
 
 /// Tunables of the check.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -43,6 +43,53 @@ const ALONGSIDE_M: f64 = 0.002;
 const STEP_M: f64 = 0.005;
 const STEP_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
 
+/// The broad phase: only a robot with a pose within reach of the path's bounding box can fail
+/// the exact test, which with a thousand robots would otherwise dominate.
+struct Broad {
+    lo: (f64, f64),
+    hi: (f64, f64),
+    /// The checked robot's reach from its path, metres.
+    mine_reach: f64,
+    length_m: f64,
+    width_m: f64,
+}
+
+impl Broad {
+    fn new(safety: &Safety, path: &[Pose], my_margin: f64) -> Self {
+        let (mut lo, mut hi) = (
+            (f64::INFINITY, f64::INFINITY),
+            (f64::NEG_INFINITY, f64::NEG_INFINITY),
+        );
+        for p in path {
+            lo = (lo.0.min(p.x), lo.1.min(p.y));
+            hi = (hi.0.max(p.x), hi.1.max(p.y));
+        }
+        let mut broad = Self {
+            lo,
+            hi,
+            mine_reach: 0.0,
+            length_m: safety.length_m,
+            width_m: safety.width_m,
+        };
+        broad.mine_reach = broad.half_diag(my_margin.max(safety.margin_m));
+        broad
+    }
+
+    fn half_diag(&self, margin: f64) -> f64 {
+        (self.length_m / 2.0 + margin).hypot(self.width_m / 2.0 + margin)
+    }
+
+    /// Whether a robot at `q` with footprint margin `their_margin` may reach the path.
+    fn near(&self, q: Pose, their_margin: f64) -> bool {
+        let dx = (self.lo.0 - q.x).max(q.x - self.hi.0).max(0.0);
+        let dy = (self.lo.1 - q.y).max(q.y - self.hi.1).max(0.0);
+        // NaN poses and margins compare false and so count as near: the exact test decides.
+        let gap = dx.hypot(dy);
+        let reach = self.mine_reach + self.half_diag(their_margin) + 1e-3;
+        gap <= reach || gap.is_nan() || reach.is_nan()
+    }
+}
+
 impl Safety {
     /// `Ok` when the intent is safe in `world`, else why not. `from` is where the robot's queued
     /// moves will leave it (its pose when it has none); `others_planned` where other robots'
@@ -58,7 +105,51 @@ impl Safety {
             return Err(format!("robot {} is not in the experiment", intent.robot()));
         };
         let start = from.unwrap_or(me.pose);
-        let path = match *intent {
+        let Some(path) = self.path(intent, start) else {
+            return Ok(());
+        };
+        // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty.
+        let my_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
+        self.within_arena(me, &path, my_margin, world.arena)?;
+        let broad = Broad::new(self, &path, my_margin);
+        let widest = world
+            .robots
+            .iter()
+            .map(|o| o.uncertainty.position_m)
+            .fold(0.0, f64::max);
+        let widest_margin = self.margin_m + UNCERTAINTY_SIGMAS * widest;
+        let mut near_planned: Vec<(u16, Pose)> = others_planned
+            .iter()
+            .filter(|(_, p)| broad.near(*p, widest_margin))
+            .copied()
+            .collect();
+        near_planned.sort_by_key(|(id, _)| *id);
+        for other in world.robots.iter().filter(|o| o.id != me.id) {
+            let their_margin = self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
+            let planned_near = near_planned
+                .binary_search_by_key(&other.id, |(id, _)| *id)
+                .is_ok();
+            if !planned_near && !broad.near(other.pose, their_margin) {
+                continue;
+            }
+            let mut theirs = vec![other.pose];
+            theirs.extend(
+                others_planned
+                    .iter()
+                    .filter(|(id, _)| *id == other.id)
+                    .map(|(_, p)| *p),
+            );
+            for q in theirs {
+                self.clear_of(me, other, q, &path, my_margin, their_margin)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The poses a moving intent sweeps from `start`, `None` for an intent that does not move
+    /// the robot.
+    fn path(&self, intent: &Intent, start: Pose) -> Option<Vec<Pose>> {
+        Some(match *intent {
             Intent::Move { command, .. } => sweep(start, command),
             Intent::WheelSpeeds { left, right, .. } => {
                 let (l, r) = (f64::from(left), f64::from(right));
@@ -74,14 +165,20 @@ impl Safety {
                     })
                     .collect()
             }
-            _ => return Ok(()),
-        };
-        let (w, h) = world.arena;
-        // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty.
-        let my_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
-        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, my_margin);
-        for p in &path {
-            for c in mine(*p).corners() {
+            _ => return None,
+        })
+    }
+
+    /// Every footprint along `path` inside the arena.
+    fn within_arena(
+        &self,
+        me: &RobotView,
+        path: &[Pose],
+        my_margin: f64,
+        (w, h): (f64, f64),
+    ) -> Result<(), String> {
+        for p in path {
+            for c in Footprint::new(*p, self.length_m, self.width_m, my_margin).corners() {
                 if c.0 < 0.0 || c.1 < 0.0 || c.0 > w || c.1 > h {
                     return Err(format!(
                         "robot {} would leave the arena at ({:.3}, {:.3})",
@@ -90,95 +187,57 @@ impl Safety {
                 }
             }
         }
-        // Broad phase: only a robot with a pose within reach of the path's bounding box can
-        // fail the exact test below, which with a thousand robots would otherwise dominate.
-        let half_diag =
-            |margin: f64| (self.length_m / 2.0 + margin).hypot(self.width_m / 2.0 + margin);
-        let (mut lo, mut hi) = (
-            (f64::INFINITY, f64::INFINITY),
-            (f64::NEG_INFINITY, f64::NEG_INFINITY),
-        );
-        for p in &path {
-            lo = (lo.0.min(p.x), lo.1.min(p.y));
-            hi = (hi.0.max(p.x), hi.1.max(p.y));
-        }
-        let mine_reach = half_diag(my_margin.max(self.margin_m));
-        let near = |q: Pose, their_margin: f64| {
-            let dx = (lo.0 - q.x).max(q.x - hi.0).max(0.0);
-            let dy = (lo.1 - q.y).max(q.y - hi.1).max(0.0);
-            // NaN poses and margins compare false and so count as near: the exact test decides.
-            let gap = dx.hypot(dy);
-            let reach = mine_reach + half_diag(their_margin) + 1e-3;
-            gap <= reach || gap.is_nan() || reach.is_nan()
-        };
-        let widest = world
-            .robots
-            .iter()
-            .map(|o| o.uncertainty.position_m)
-            .fold(0.0, f64::max);
-        let widest_margin = self.margin_m + UNCERTAINTY_SIGMAS * widest;
-        let mut near_planned: Vec<(u16, Pose)> = others_planned
-            .iter()
-            .filter(|(_, p)| near(*p, widest_margin))
-            .copied()
-            .collect();
-        near_planned.sort_by_key(|(id, _)| *id);
-        for other in world.robots.iter().filter(|o| o.id != me.id) {
-            let their_margin = self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
-            let planned_near = near_planned
-                .binary_search_by_key(&other.id, |(id, _)| *id)
-                .is_ok();
-            if !planned_near && !near(other.pose, their_margin) {
-                continue;
-            }
-            let mut theirs = vec![other.pose];
-            theirs.extend(
-                others_planned
-                    .iter()
-                    .filter(|(id, _)| *id == other.id)
-                    .map(|(_, p)| *p),
-            );
-            for q in theirs {
-                let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
-                // Robots already inside each other's widened footprints (pushing side by side,
-                // or a bad estimate) may still move apart or alongside: such a path is refused
-                // only where it closes in on the other by more than `ALONGSIDE_M`, or deepens an
-                // overlap of the footprints with the plain margin.
-                let overlapping_now = mine(path[0]).overlaps(&fq);
-                let plain = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
-                let fq_plain = plain(q);
-                let start_depth = plain(path[0]).depth(&fq_plain);
-                if let Some(p) = path.iter().skip(1).find(|p| {
-                    if overlapping_now {
-                        let d = plain(**p).depth(&fq_plain);
-                        d > start_depth + ALONGSIDE_M || (d > 0.0 && d > start_depth)
-                    } else {
-                        mine(**p).overlaps(&fq)
-                    }
-                }) {
-                    let widened = UNCERTAINTY_SIGMAS
-                        * (me.uncertainty.position_m + other.uncertainty.position_m);
-                    return Err(if widened >= 0.0005 {
-                        format!(
-                            "robot {} would touch robot {} at ({:.3}, {:.3}) (their footprints \
-                             widened by {:.1} and {:.1} mm for the uncertainty of their poses)",
-                            me.id,
-                            other.id,
-                            p.x,
-                            p.y,
-                            UNCERTAINTY_SIGMAS * me.uncertainty.position_m * 1e3,
-                            UNCERTAINTY_SIGMAS * other.uncertainty.position_m * 1e3
-                        )
-                    } else {
-                        format!(
-                            "robot {} would touch robot {} at ({:.3}, {:.3})",
-                            me.id, other.id, p.x, p.y
-                        )
-                    });
-                }
-            }
-        }
         Ok(())
+    }
+
+    /// `me` along `path` keeps clear of `other` standing at `q`. Robots already inside each
+    /// other's widened footprints (pushing side by side, or a bad estimate) may still move apart
+    /// or alongside: such a path is refused only where it closes in on the other by more than
+    /// `ALONGSIDE_M`, or deepens an overlap of the footprints with the plain margin.
+    fn clear_of(
+        &self,
+        me: &RobotView,
+        other: &RobotView,
+        q: Pose,
+        path: &[Pose],
+        my_margin: f64,
+        their_margin: f64,
+    ) -> Result<(), String> {
+        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, my_margin);
+        let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
+        let overlapping_now = mine(path[0]).overlaps(&fq);
+        let plain = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
+        let fq_plain = plain(q);
+        let start_depth = plain(path[0]).depth(&fq_plain);
+        let Some(p) = path.iter().skip(1).find(|p| {
+            if overlapping_now {
+                let d = plain(**p).depth(&fq_plain);
+                d > start_depth + ALONGSIDE_M || (d > 0.0 && d > start_depth)
+            } else {
+                mine(**p).overlaps(&fq)
+            }
+        }) else {
+            return Ok(());
+        };
+        let widened =
+            UNCERTAINTY_SIGMAS * (me.uncertainty.position_m + other.uncertainty.position_m);
+        Err(if widened >= 0.0005 {
+            format!(
+                "robot {} would touch robot {} at ({:.3}, {:.3}) (their footprints widened by \
+                 {:.1} and {:.1} mm for the uncertainty of their poses)",
+                me.id,
+                other.id,
+                p.x,
+                p.y,
+                UNCERTAINTY_SIGMAS * me.uncertainty.position_m * 1e3,
+                UNCERTAINTY_SIGMAS * other.uncertainty.position_m * 1e3
+            )
+        } else {
+            format!(
+                "robot {} would touch robot {} at ({:.3}, {:.3})",
+                me.id, other.id, p.x, p.y
+            )
+        })
     }
 
     /// `Ok` when the intent is safe from the robots' current poses.

@@ -299,22 +299,7 @@ fn has_summary(buf: &[u8]) -> bool {
 /// # Errors
 /// An empty input, one without the MCAP magic or header record, or a write error.
 pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
-    if buf.is_empty() {
-        bail!("the file is empty");
-    }
-    if !buf.starts_with(mcap::MAGIC) {
-        bail!("not an MCAP file: it does not start with the MCAP magic bytes");
-    }
-    let mut pos = mcap::MAGIC.len();
-    let header = match frame(buf, pos).map(|(op, body)| (op, mcap::parse_record(op, body))) {
-        Ok((_, Ok(Record::Header(h)))) => h,
-        Ok((op, _)) => bail!(
-            "the MCAP magic is followed by a {} record, not a readable header",
-            op_name(op)
-        ),
-        Err(why) => bail!("the file ends inside its MCAP header: {why}"),
-    };
-    pos += 9 + frame(buf, pos).map_or(0, |(_, body)| body.len());
+    let (header, mut pos) = read_header(buf)?;
     let mut writer = mcap::WriteOptions::new()
         .profile(header.profile)
         .library(header.library)
@@ -354,68 +339,13 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
                 break;
             }
         };
-        match record {
-            Record::Chunk { header, data } => {
-                // All of a chunk or none of it: check every record before writing any.
-                let mut trial = known.clone();
-                let inner = chunk_records(&header, &data).and_then(|records| {
-                    records
-                        .into_iter()
-                        .map(|r| match r {
-                            Record::Schema { .. } | Record::Channel(_) | Record::Message { .. } => {
-                                trial.admit(&r)?;
-                                Ok(r)
-                            }
-                            other => Err(format!(
-                                "a {} record inside a chunk",
-                                op_name(other.opcode())
-                            )),
-                        })
-                        .collect::<Result<Vec<_>, String>>()
-                });
-                let inner = match inner {
-                    Ok(inner) => inner,
-                    Err(why) => {
-                        kept.ending = cut(pos, format!("chunk {}: {why}", kept.chunks + 1));
-                        break;
-                    }
-                };
-                known = trial;
-                for r in &inner {
-                    emit(&mut writer, r)?;
-                    if matches!(r, Record::Message { .. }) {
-                        kept.messages += 1;
-                    }
-                }
-                // Close the output's chunk where the input's closed.
-                writer.flush()?;
-                kept.chunks += 1;
+        match take(&mut writer, &mut known, &mut kept, record)? {
+            Taken::Next => {}
+            Taken::Cut(why) => {
+                kept.ending = cut(pos, why);
+                break;
             }
-            r @ (Record::Schema { .. } | Record::Channel(_) | Record::Message { .. }) => {
-                if let Err(why) = known.admit(&r) {
-                    kept.ending = cut(pos, why);
-                    break;
-                }
-                emit(&mut writer, &r)?;
-                if matches!(r, Record::Message { .. }) {
-                    kept.messages += 1;
-                }
-            }
-            Record::Metadata(m) => {
-                writer.write_metadata(&m)?;
-                kept.metadata += 1;
-            }
-            Record::Attachment { header, data, .. } => {
-                writer.attach(&mcap::Attachment {
-                    log_time: header.log_time,
-                    create_time: header.create_time,
-                    name: header.name,
-                    media_type: header.media_type,
-                    data,
-                })?;
-                kept.attachments += 1;
-            }
-            Record::DataEnd(_) | Record::Footer(_) => {
+            Taken::End => {
                 kept.ending = if has_summary(buf) {
                     Ending::Complete
                 } else {
@@ -423,13 +353,128 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
                 };
                 break;
             }
-            // Indexes and statistics are written afresh; a second header adds nothing.
-            _ => {}
         }
         pos += 9 + body.len();
     }
     writer.finish()?;
     Ok(kept)
+}
+
+/// The file's header record and where the records after it start.
+fn read_header(buf: &[u8]) -> Result<(records::Header, usize)> {
+    if buf.is_empty() {
+        bail!("the file is empty");
+    }
+    if !buf.starts_with(mcap::MAGIC) {
+        bail!("not an MCAP file: it does not start with the MCAP magic bytes");
+    }
+    let pos = mcap::MAGIC.len();
+    let header = match frame(buf, pos).map(|(op, body)| (op, mcap::parse_record(op, body))) {
+        Ok((_, Ok(Record::Header(h)))) => h,
+        Ok((op, _)) => bail!(
+            "the MCAP magic is followed by a {} record, not a readable header",
+            op_name(op)
+        ),
+        Err(why) => bail!("the file ends inside its MCAP header: {why}"),
+    };
+    Ok((
+        header,
+        pos + 9 + frame(buf, pos).map_or(0, |(_, body)| body.len()),
+    ))
+}
+
+/// What one record did to the recovery.
+enum Taken {
+    /// Kept or passed over: on to the next record.
+    Next,
+    /// Refused: the file is cut before it, for this reason.
+    Cut(String),
+    /// The data end or the footer: the data is all there.
+    End,
+}
+
+/// Writes one record the input holds, or says why the file must be cut before it.
+fn take<W: Write + Seek>(
+    writer: &mut mcap::Writer<W>,
+    known: &mut Known,
+    kept: &mut Recovered,
+    record: Record<'_>,
+) -> Result<Taken> {
+    match record {
+        Record::Chunk { header, data } => {
+            let inner = match admit_chunk(known, &header, &data, kept.chunks) {
+                Ok(inner) => inner,
+                Err(why) => return Ok(Taken::Cut(why)),
+            };
+            for r in &inner {
+                emit(writer, r)?;
+                if matches!(r, Record::Message { .. }) {
+                    kept.messages += 1;
+                }
+            }
+            // Close the output's chunk where the input's closed.
+            writer.flush()?;
+            kept.chunks += 1;
+        }
+        r @ (Record::Schema { .. } | Record::Channel(_) | Record::Message { .. }) => {
+            if let Err(why) = known.admit(&r) {
+                return Ok(Taken::Cut(why));
+            }
+            emit(writer, &r)?;
+            if matches!(r, Record::Message { .. }) {
+                kept.messages += 1;
+            }
+        }
+        Record::Metadata(m) => {
+            writer.write_metadata(&m)?;
+            kept.metadata += 1;
+        }
+        Record::Attachment { header, data, .. } => {
+            writer.attach(&mcap::Attachment {
+                log_time: header.log_time,
+                create_time: header.create_time,
+                name: header.name,
+                media_type: header.media_type,
+                data,
+            })?;
+            kept.attachments += 1;
+        }
+        Record::DataEnd(_) | Record::Footer(_) => return Ok(Taken::End),
+        // Indexes and statistics are written afresh; a second header adds nothing.
+        _ => {}
+    }
+    Ok(Taken::Next)
+}
+
+/// A chunk's records, all of them or none: every record is checked against what is `known`
+/// before any is written, and `known` learns the chunk's schemas and channels only when all
+/// pass. `done` chunks came before it.
+fn admit_chunk<'a>(
+    known: &mut Known,
+    header: &records::ChunkHeader,
+    data: &'a [u8],
+    done: u64,
+) -> Result<Vec<Record<'a>>, String> {
+    let mut trial = known.clone();
+    let inner = chunk_records(header, data)
+        .and_then(|records| {
+            records
+                .into_iter()
+                .map(|r| match r {
+                    Record::Schema { .. } | Record::Channel(_) | Record::Message { .. } => {
+                        trial.admit(&r)?;
+                        Ok(r)
+                    }
+                    other => Err(format!(
+                        "a {} record inside a chunk",
+                        op_name(other.opcode())
+                    )),
+                })
+                .collect::<Result<Vec<_>, String>>()
+        })
+        .map_err(|why| format!("chunk {}: {why}", done + 1))?;
+    *known = trial;
+    Ok(inner)
 }
 
 #[cfg(test)]
