@@ -452,71 +452,9 @@ async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
             tag: 0,
         },
         "stop" => Intent::Stop { robot: id },
-        "settings" => {
-            let s = robot
-                .read_settings()
-                .await
-                .map_err(|e| format!("reading settings: {e}"))?;
-            let bytes = bytemuck::bytes_of(&s);
-            let values: serde_json::Map<String, Value> = settings_leaves()
-                .iter()
-                .map(|l| (l.path.clone(), leaf_value(l, bytes)))
-                .collect();
-            return Ok(json!({"type": "settings", "ok": true, "robot": id, "values": values}));
-        }
-        "set" => {
-            let path = cmd["path"].as_str().ok_or("path must be a settings path")?;
-            let leaf = settings_leaves()
-                .into_iter()
-                .find(|l| l.path == path)
-                .ok_or_else(|| format!("no setting {path:?}"))?;
-            let text = match &cmd["value"] {
-                Value::String(s) => s.clone(),
-                v => v.to_string(),
-            };
-            let bytes = leaf_bytes(&leaf, &text)?;
-            robot
-                .addr()
-                .send(WriteSettings {
-                    offset: leaf.offset,
-                    bytes,
-                })
-                .await
-                .map_err(|e| format!("robot unreachable: {e}"))?
-                .map_err(|e| format!("writing {path}: {e}"))?;
-            // Read the whole block back from the robot, not from the host's mirror.
-            let s = robot
-                .read_settings()
-                .await
-                .map_err(|e| format!("reading back: {e}"))?;
-            let value = leaf_value(&leaf, bytemuck::bytes_of(&s));
-            return Ok(
-                json!({"type": "reply", "ok": true, "robot": id, "path": path,
-                "value": value, "message": format!("robot {id}: {path} read back {value}")}),
-            );
-        }
-        "pid" => {
-            let on = cmd["on"].as_bool().unwrap_or(false);
-            let setup = if on {
-                ReflectorSetup {
-                    mode: ReflectorMode::Reduced,
-                    period_ms: PID_PERIOD_MS,
-                }
-            } else {
-                robot_actor::RobotConfig::default().reflector
-            };
-            robot
-                .addr()
-                .send(Command::Reflector(setup))
-                .await
-                .map_err(|e| format!("robot unreachable: {e}"))?
-                .map_err(|e| format!("reflector: {e}"))?;
-            return Ok(ok(if on {
-                format!("robot {id}: reduced state every {PID_PERIOD_MS} ms")
-            } else {
-                format!("robot {id}: full state again")
-            }));
-        }
+        "settings" => return read_all_settings(robot, id).await,
+        "set" => return write_setting(robot, id, cmd).await,
+        "pid" => return pid_view(robot, id, cmd).await,
         other => return Err(format!("unknown command {other:?}")),
     };
     ctx.supervisor
@@ -525,6 +463,78 @@ async fn run_command(ctx: &PanelContext, cmd: &Value) -> Result<Value, String> {
         .map_err(|e| format!("supervisor unreachable: {e}"))?
         .map_err(|why| format!("held by the safety check: {why}"))?;
     Ok(ok(format!("robot {id}: {name} sent")))
+}
+
+/// Every setting of robot `id`, read from the robot.
+async fn read_all_settings(robot: &Robot, id: u16) -> Result<Value, String> {
+    let s = robot
+        .read_settings()
+        .await
+        .map_err(|e| format!("reading settings: {e}"))?;
+    let bytes = bytemuck::bytes_of(&s);
+    let values: serde_json::Map<String, Value> = settings_leaves()
+        .iter()
+        .map(|l| (l.path.clone(), leaf_value(l, bytes)))
+        .collect();
+    Ok(json!({"type": "settings", "ok": true, "robot": id, "values": values}))
+}
+
+/// Writes one setting through the robot actor and reads the whole block back from the robot,
+/// not from the host's mirror.
+async fn write_setting(robot: &Robot, id: u16, cmd: &Value) -> Result<Value, String> {
+    let path = cmd["path"].as_str().ok_or("path must be a settings path")?;
+    let leaf = settings_leaves()
+        .into_iter()
+        .find(|l| l.path == path)
+        .ok_or_else(|| format!("no setting {path:?}"))?;
+    let text = match &cmd["value"] {
+        Value::String(s) => s.clone(),
+        v => v.to_string(),
+    };
+    let bytes = leaf_bytes(&leaf, &text)?;
+    robot
+        .addr()
+        .send(WriteSettings {
+            offset: leaf.offset,
+            bytes,
+        })
+        .await
+        .map_err(|e| format!("robot unreachable: {e}"))?
+        .map_err(|e| format!("writing {path}: {e}"))?;
+    // Read the whole block back from the robot, not from the host's mirror.
+    let s = robot
+        .read_settings()
+        .await
+        .map_err(|e| format!("reading back: {e}"))?;
+    let value = leaf_value(&leaf, bytemuck::bytes_of(&s));
+    Ok(
+        json!({"type": "reply", "ok": true, "robot": id, "path": path,
+        "value": value, "message": format!("robot {id}: {path} read back {value}")}),
+    )
+}
+
+/// Turns the PID view on (the reduced state at a high rate) or off (the full state again).
+async fn pid_view(robot: &Robot, id: u16, cmd: &Value) -> Result<Value, String> {
+    let on = cmd["on"].as_bool().unwrap_or(false);
+    let setup = if on {
+        ReflectorSetup {
+            mode: ReflectorMode::Reduced,
+            period_ms: PID_PERIOD_MS,
+        }
+    } else {
+        robot_actor::RobotConfig::default().reflector
+    };
+    robot
+        .addr()
+        .send(Command::Reflector(setup))
+        .await
+        .map_err(|e| format!("robot unreachable: {e}"))?
+        .map_err(|e| format!("reflector: {e}"))?;
+    Ok(ok(if on {
+        format!("robot {id}: reduced state every {PID_PERIOD_MS} ms")
+    } else {
+        format!("robot {id}: full state again")
+    }))
 }
 
 /// A behaviour that does nothing and never ends: the robots wait for the control panel.

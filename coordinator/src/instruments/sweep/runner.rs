@@ -169,35 +169,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
     if let Some(r) = &recording {
         let _ = std::fs::remove_file(r);
     }
-    let mut cmd = Command::new(&options.exe);
-    cmd.arg("--behaviour")
-        .arg(&definition.behaviour)
-        .arg("--seed")
-        .arg(spec.seed.to_string());
-    if let Some(w) = &spec.world {
-        cmd.arg("--world").arg(w);
-    }
-    if let Some(n) = spec.robots {
-        cmd.arg("--robots").arg(n.to_string());
-    }
-    if let Some(hz) = spec.physics_hz {
-        cmd.arg("--physics-hz").arg(hz.to_string());
-    }
-    for kick in spec.kick.iter().filter(|k| *k != "none") {
-        for part in kick.split('+') {
-            cmd.arg("--kick").arg(part.trim());
-        }
-    }
-    for (k, v) in &spec.params {
-        cmd.arg("--param").arg(format!("{k}={v}"));
-    }
-    if let Some(d) = definition.duration_s {
-        cmd.arg("--duration").arg(d.to_string());
-    }
-    cmd.arg("--json-report").arg(&report);
-    if let Some(r) = &recording {
-        cmd.arg("--record").arg(r);
-    }
+    let mut cmd = command(definition, options, spec, &report, recording.as_deref());
     die_with_parent(&mut cmd);
     let status: std::io::Result<ExitStatus> = File::create(&log).and_then(|f| {
         cmd.stdin(Stdio::null())
@@ -205,28 +177,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
             .stderr(f)
             .status()
     });
-    let mut result = RunResult {
-        id: spec.id(),
-        index: spec.index,
-        combination: spec.combination(),
-        world: spec.world.clone(),
-        robots: spec.robots,
-        physics_hz: spec.physics_hz,
-        kick: spec.kick.clone(),
-        params: spec.params.iter().cloned().collect(),
-        seed: spec.seed,
-        outcome: Outcome::Error,
-        exit_code: None,
-        summary: String::new(),
-        metrics: BTreeMap::new(),
-        robot_collisions: None,
-        wall_contacts: None,
-        experiment_time_s: None,
-        behaviour_success: None,
-        worst_model_error_mm: None,
-        lost_episodes: None,
-        lost_s: None,
-    };
+    let mut result = unfinished(spec);
     let status = match status {
         Ok(s) => s,
         Err(e) => {
@@ -259,6 +210,73 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         }
     }
     result
+}
+
+/// The coordinator command line of one run: its coordinates, the report's and the recording's
+/// paths.
+fn command(
+    definition: &Definition,
+    options: &Options,
+    spec: &RunSpec,
+    report: &Path,
+    recording: Option<&Path>,
+) -> Command {
+    let mut cmd = Command::new(&options.exe);
+    cmd.arg("--behaviour")
+        .arg(&definition.behaviour)
+        .arg("--seed")
+        .arg(spec.seed.to_string());
+    if let Some(w) = &spec.world {
+        cmd.arg("--world").arg(w);
+    }
+    if let Some(n) = spec.robots {
+        cmd.arg("--robots").arg(n.to_string());
+    }
+    if let Some(hz) = spec.physics_hz {
+        cmd.arg("--physics-hz").arg(hz.to_string());
+    }
+    for kick in spec.kick.iter().filter(|k| *k != "none") {
+        for part in kick.split('+') {
+            cmd.arg("--kick").arg(part.trim());
+        }
+    }
+    for (k, v) in &spec.params {
+        cmd.arg("--param").arg(format!("{k}={v}"));
+    }
+    if let Some(d) = definition.duration_s {
+        cmd.arg("--duration").arg(d.to_string());
+    }
+    cmd.arg("--json-report").arg(report);
+    if let Some(r) = recording {
+        cmd.arg("--record").arg(r);
+    }
+    cmd
+}
+
+/// A run's result before its process ends: its coordinates, and an error until it says more.
+fn unfinished(spec: &RunSpec) -> RunResult {
+    RunResult {
+        id: spec.id(),
+        index: spec.index,
+        combination: spec.combination(),
+        world: spec.world.clone(),
+        robots: spec.robots,
+        physics_hz: spec.physics_hz,
+        kick: spec.kick.clone(),
+        params: spec.params.iter().cloned().collect(),
+        seed: spec.seed,
+        outcome: Outcome::Error,
+        exit_code: None,
+        summary: String::new(),
+        metrics: BTreeMap::new(),
+        robot_collisions: None,
+        wall_contacts: None,
+        experiment_time_s: None,
+        behaviour_success: None,
+        worst_model_error_mm: None,
+        lost_episodes: None,
+        lost_s: None,
+    }
 }
 
 /// Fills a result from a run's JSON report.
