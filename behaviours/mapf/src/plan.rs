@@ -170,6 +170,19 @@ pub fn validate(
         return Ok(());
     }
     let len = plan.paths[0].len().max(1);
+    validate_paths(graph, plan, starts, goals, len)?;
+    validate_meetings(graph, plan, len)
+}
+
+/// Each agent's path alone: of the common length, on the graph's vertices, from its start to its
+/// goal, along edges.
+fn validate_paths(
+    graph: &Graph,
+    plan: &Solution,
+    starts: &[u32],
+    goals: &[u32],
+    len: usize,
+) -> Result<(), Conflict> {
     for (agent, path) in plan.paths.iter().enumerate() {
         if path.len() != len {
             return Err(Conflict::PathLength {
@@ -211,7 +224,13 @@ pub fn validate(
             }
         }
     }
+    Ok(())
+}
 
+/// The agents together: no two on one vertex at a time, and no cycle of agents following each
+/// other (a swap is a cycle of two).
+fn validate_meetings(graph: &Graph, plan: &Solution, len: usize) -> Result<(), Conflict> {
+    let agents = plan.paths.len();
     // Sparse scratch indexed by vertex; entries are reset after each step so the cost per step
     // is O(agents), not O(vertices).
     const NONE: usize = usize::MAX;
