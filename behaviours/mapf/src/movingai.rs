@@ -93,6 +93,52 @@ pub struct GridMap {
     cell_of: Vec<u32>,
 }
 
+/// One row of a `.map` file's cells: a vertex for each passable cell, none for an obstacle.
+fn parse_row(
+    line: usize,
+    row: &str,
+    width: u32,
+    vertex_of: &mut Vec<u32>,
+    cell_of: &mut Vec<u32>,
+) -> Result<(), MovingAiError> {
+    if row.chars().count() != width as usize {
+        return Err(syntax(
+            line,
+            format!("row has {} cells, expected {width}", row.chars().count()),
+        ));
+    }
+    for (column, c) in row.chars().enumerate() {
+        match c {
+            '.' | 'G' | 'S' => {
+                vertex_of.push(cell_of.len() as u32);
+                cell_of.push(vertex_of.len() as u32 - 1);
+            }
+            '@' | 'O' | 'T' | 'W' => vertex_of.push(NONE),
+            _ => {
+                return Err(syntax(
+                    line,
+                    format!("unknown cell `{c}` in column {}", column + 1),
+                ))
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The grid's edges: each passable cell to its passable right and lower neighbours.
+fn grid_edges(width: u32, height: u32, vertex_of: &[u32], cell_of: &[u32]) -> Vec<(u32, u32)> {
+    let mut edges = Vec::with_capacity(cell_of.len() * 2);
+    for (v, &cell) in cell_of.iter().enumerate() {
+        let (x, y) = (cell % width, cell / width);
+        let right = (x + 1 < width).then(|| vertex_of[cell as usize + 1]);
+        let down = (y + 1 < height).then(|| vertex_of[(cell + width) as usize]);
+        for u in [right, down].into_iter().flatten().filter(|&u| u != NONE) {
+            edges.push((v as u32, u));
+        }
+    }
+    edges
+}
+
 impl GridMap {
     /// Reads a `.map` file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, MovingAiError> {
@@ -164,41 +210,13 @@ impl GridMap {
                 expected: format!("{height} rows"),
             })?;
             last = line;
-            if row.chars().count() != width as usize {
-                return Err(syntax(
-                    line,
-                    format!("row has {} cells, expected {width}", row.chars().count()),
-                ));
-            }
-            for (column, c) in row.chars().enumerate() {
-                match c {
-                    '.' | 'G' | 'S' => {
-                        vertex_of.push(cell_of.len() as u32);
-                        cell_of.push(vertex_of.len() as u32 - 1);
-                    }
-                    '@' | 'O' | 'T' | 'W' => vertex_of.push(NONE),
-                    _ => {
-                        return Err(syntax(
-                            line,
-                            format!("unknown cell `{c}` in column {}", column + 1),
-                        ))
-                    }
-                }
-            }
+            parse_row(line, row, width, &mut vertex_of, &mut cell_of)?;
         }
         if let Some((line, extra)) = lines.find(|(_, l)| !l.is_empty()) {
             return Err(syntax(line, format!("text after the last row: `{extra}`")));
         }
 
-        let mut edges = Vec::with_capacity(cell_of.len() * 2);
-        for (v, &cell) in cell_of.iter().enumerate() {
-            let (x, y) = (cell % width, cell / width);
-            let right = (x + 1 < width).then(|| vertex_of[cell as usize + 1]);
-            let down = (y + 1 < height).then(|| vertex_of[(cell + width) as usize]);
-            for u in [right, down].into_iter().flatten().filter(|&u| u != NONE) {
-                edges.push((v as u32, u));
-            }
-        }
+        let edges = grid_edges(width, height, &vertex_of, &cell_of);
         let graph =
             Graph::from_edges(cell_of.len(), edges).map_err(|e| syntax(3, e.to_string()))?;
         Ok(Self {
