@@ -86,60 +86,7 @@ impl Recorder {
         let shown = path.display().to_string();
         let thread = std::thread::Builder::new()
             .name("mcap-writer".into())
-            .spawn(move || -> Result<RecordStats> {
-                let mut stats = RecordStats::default();
-                let mut sequence = 0u32;
-                // When the open chunk must be on disk, and how big it is so far.
-                let mut due: Option<Instant> = None;
-                let mut chunk_bytes = 0u64;
-                loop {
-                    let msg = match due {
-                        Some(at) => {
-                            match rx.recv_timeout(at.saturating_duration_since(Instant::now())) {
-                                Ok(m) => Some(m),
-                                Err(std_mpsc::RecvTimeoutError::Timeout) => None,
-                                // Every sender gone without a finish (a panic unwinding): close the file.
-                                Err(std_mpsc::RecvTimeoutError::Disconnected) => Some(Msg::Finish),
-                            }
-                        }
-                        None => Some(rx.recv().unwrap_or(Msg::Finish)),
-                    };
-                    match msg {
-                        Some(Msg::Write { topic, t_ns, data }) => {
-                            sequence = sequence.wrapping_add(1);
-                            let header = mcap::records::MessageHeader {
-                                channel_id: channels[&topic],
-                                sequence,
-                                log_time: base + t_ns,
-                                publish_time: base + t_ns,
-                            };
-                            writer.write_to_known_channel(&header, &data)?;
-                            stats.messages += 1;
-                            if topic == Topic::Packets {
-                                stats.packets += 1;
-                            }
-                            chunk_bytes += data.len() as u64 + MESSAGE_OVERHEAD;
-                            due.get_or_insert_with(|| Instant::now() + FLUSH_EVERY);
-                        }
-                        Some(Msg::Finish) => {
-                            writer
-                                .finish()
-                                .with_context(|| format!("finishing {shown}"))?;
-                            stats.bytes = writer
-                                .into_inner()
-                                .finish()
-                                .with_context(|| format!("finishing {shown}"))?;
-                            return Ok(stats);
-                        }
-                        None => {}
-                    }
-                    if chunk_bytes >= CHUNK_BYTES || due.is_some_and(|at| Instant::now() >= at) {
-                        writer.flush().with_context(|| format!("writing {shown}"))?;
-                        chunk_bytes = 0;
-                        due = None;
-                    }
-                }
-            })
+            .spawn(move || write_loop(writer, &rx, &channels, base, &shown))
             .context("starting the MCAP writer thread")?;
         Ok(Arc::new(Self {
             tx: Mutex::new(Some(tx)),
@@ -209,6 +156,69 @@ impl Recorder {
                 .join()
                 .map_err(|_| anyhow!("the MCAP writer thread panicked"))?,
             None => Err(anyhow!("recording already finished")),
+        }
+    }
+}
+
+/// The writer thread: each message into the open chunk, which is closed on time
+/// (`FLUSH_EVERY`) and on size (`CHUNK_BYTES`), until the finish or every sender is gone.
+fn write_loop(
+    mut writer: mcap::Writer<WholeRecords>,
+    rx: &std_mpsc::Receiver<Msg>,
+    channels: &BTreeMap<Topic, u16>,
+    base: u64,
+    shown: &str,
+) -> Result<RecordStats> {
+    let mut stats = RecordStats::default();
+    let mut sequence = 0u32;
+    // When the open chunk must be on disk, and how big it is so far.
+    let mut due: Option<Instant> = None;
+    let mut chunk_bytes = 0u64;
+    loop {
+        let msg = match due {
+            Some(at) => {
+                match rx.recv_timeout(at.saturating_duration_since(Instant::now())) {
+                    Ok(m) => Some(m),
+                    Err(std_mpsc::RecvTimeoutError::Timeout) => None,
+                    // Every sender gone without a finish (a panic unwinding): close the file.
+                    Err(std_mpsc::RecvTimeoutError::Disconnected) => Some(Msg::Finish),
+                }
+            }
+            None => Some(rx.recv().unwrap_or(Msg::Finish)),
+        };
+        match msg {
+            Some(Msg::Write { topic, t_ns, data }) => {
+                sequence = sequence.wrapping_add(1);
+                let header = mcap::records::MessageHeader {
+                    channel_id: channels[&topic],
+                    sequence,
+                    log_time: base + t_ns,
+                    publish_time: base + t_ns,
+                };
+                writer.write_to_known_channel(&header, &data)?;
+                stats.messages += 1;
+                if topic == Topic::Packets {
+                    stats.packets += 1;
+                }
+                chunk_bytes += data.len() as u64 + MESSAGE_OVERHEAD;
+                due.get_or_insert_with(|| Instant::now() + FLUSH_EVERY);
+            }
+            Some(Msg::Finish) => {
+                writer
+                    .finish()
+                    .with_context(|| format!("finishing {shown}"))?;
+                stats.bytes = writer
+                    .into_inner()
+                    .finish()
+                    .with_context(|| format!("finishing {shown}"))?;
+                return Ok(stats);
+            }
+            None => {}
+        }
+        if chunk_bytes >= CHUNK_BYTES || due.is_some_and(|at| Instant::now() >= at) {
+            writer.flush().with_context(|| format!("writing {shown}"))?;
+            chunk_bytes = 0;
+            due = None;
         }
     }
 }
