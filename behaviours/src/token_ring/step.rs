@@ -1,0 +1,261 @@
+//! One step of the ring on every snapshot and event: its limits, the team turning round, and
+//! each robot following, detouring or trying a held move again; and the behaviour's hooks.
+
+use super::*;
+
+impl TokenRing {
+    /// One step of the team: the run's limits, the team turning round, and each robot's
+    /// following, detour or held move.
+    pub(super) fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        self.odometer.observe(world);
+        if let Some(stall) = self.odometer.stall() {
+            return self.fail(stall.to_string());
+        }
+        if let Some(why) = self.overdue(world, team) {
+            return self.fail(why);
+        }
+        if let Some(out) = self.turn_round(world, team) {
+            return out;
+        }
+        let mut out = Vec::new();
+        for (k, id) in self.order.clone().into_iter().enumerate() {
+            self.drive(k, id, world, team, &mut out);
+        }
+        out
+    }
+
+    /// Why the run must stop: no token pass for too long, or an aborted manoeuvre. Notes which
+    /// robots stand still.
+    pub(super) fn overdue(&mut self, world: &WorldSnapshot, team: &Team) -> Option<String> {
+        for view in &world.robots {
+            if let Some(bot) = self.bots.get_mut(&view.id) {
+                let w = view.state.wheels;
+                bot.still_since = if w.left_mps == 0.0 && w.right_mps == 0.0 {
+                    bot.still_since.or(Some(world.time))
+                } else {
+                    None
+                };
+            }
+        }
+        if world.time.saturating_sub(self.last_pass) > PASS_LIMIT {
+            return Some(format!(
+                "no token pass for {} s after {} passes",
+                PASS_LIMIT.as_secs(),
+                self.passes
+            ));
+        }
+        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
+            return Some(format!("robot {id}: a manoeuvre was aborted"));
+        }
+        None
+    }
+
+    /// The whole team turning round: once the token has been round and nobody is mid-detour,
+    /// every robot faces about; while it turns, only its moves go out.
+    pub(super) fn turn_round(&mut self, world: &WorldSnapshot, team: &Team) -> Option<Vec<Intent>> {
+        let mut out = Vec::new();
+        if self.turning {
+            if self.order.iter().all(|id| !self.busy(*id, team)) {
+                self.turning = false;
+                self.direction = -self.direction;
+                self.reversals += 1;
+            } else {
+                for id in self.order.clone() {
+                    out.extend(self.pump(id, world, team));
+                }
+                return Some(out);
+            }
+        }
+        // Turn the whole team round once the token has been round, when nobody is mid-detour.
+        if self.passes >= self.reverse_at && self.order.iter().all(|id| !self.busy(*id, team)) {
+            self.reverse_at += self.order.len() as u32;
+            self.turning = true;
+            for id in self.order.clone() {
+                if let Some(view) = world.robot(id) {
+                    out.push(Intent::Stop { robot: id });
+                    out.extend(self.send(id, &[Leg::Face(view.pose.theta + PI)], world, team));
+                }
+            }
+            return Some(out);
+        }
+        None
+    }
+
+    /// Robot `id` (the `k`-th in the ring): a held move tried again, its staggered start, a
+    /// detour round an unknown obstacle, or its following speed kept to the gap ahead. `out`
+    /// holds what this step has sent so far.
+    pub(super) fn drive(
+        &mut self,
+        k: usize,
+        id: u16,
+        world: &WorldSnapshot,
+        team: &Team,
+        out: &mut Vec<Intent>,
+    ) {
+        let Some(view) = world.robot(id) else {
+            return;
+        };
+        let Some(bot) = self.bots.get(&id) else {
+            return;
+        };
+        if !team.idle(id) {
+            return;
+        }
+        if !bot.legs.is_empty() {
+            // A held move: try it again.
+            out.extend(self.pump(id, world, team));
+            return;
+        }
+        if !bot.started {
+            if world.time < START_STAGGER * k as u32 {
+                return;
+            }
+            if let Some(b) = self.bots.get_mut(&id) {
+                b.started = true;
+            }
+        }
+        let ahead = self.ahead(view, world);
+        let gap = ahead
+            .map_or(f64::INFINITY, |(_, d)| d)
+            .min(self.sighted_gap(id, world.time));
+        let level = view.state.proximity.front_obstacle;
+        let unknown = level > 0 && !self.reflection_explained(view, world, level);
+        if level == 1 && unknown {
+            out.push(Intent::FollowLine {
+                robot: id,
+                speed: None,
+            });
+            // One detour at a time: the box's surroundings hold one robot off the tape. A
+            // move sent in this same step counts too (the team's books see it once this
+            // step returns).
+            let moving = |o: u16| {
+                out.iter()
+                    .any(|i| matches!(i, Intent::Move { robot, .. } if *robot == o))
+            };
+            let someone_detouring = self
+                .order
+                .iter()
+                .any(|o| *o != id && (self.busy(*o, team) || moving(*o)));
+            // The tape past the box, where the detour comes back, must be free.
+            let (s, c) = view.pose.theta.sin_cos();
+            let rejoin = (view.pose.x + 0.12 * c, view.pose.y + 0.12 * s);
+            let rejoin_clear = world
+                .robots
+                .iter()
+                .filter(|r| r.id != id)
+                .all(|r| (r.pose.x - rejoin.0).hypot(r.pose.y - rejoin.1) > REJOIN_CLEAR);
+            if !someone_detouring && rejoin_clear {
+                out.push(Intent::Stop { robot: id });
+                out.extend(self.detour(view, world, team));
+            }
+            return;
+        }
+        let current = team.following(id);
+        let mut want = if gap < STOP_GAP {
+            None
+        } else if gap > GO_GAP || current.is_some() {
+            Some(self.speed_of(id))
+        } else {
+            current
+        };
+        if unknown && (2..=3).contains(&level) {
+            want = want.map(|v| v.min(CREEP_MPS));
+        }
+        out.push(Intent::FollowLine {
+            robot: id,
+            speed: want,
+        });
+    }
+}
+
+impl Behaviour for TokenRing {
+    fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.last_pass = world.time;
+        let mut out = self.leds();
+        out.extend(self.step(world, team));
+        out
+    }
+
+    fn on_snapshot(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
+        self.step(world, team)
+    }
+
+    fn on_event(
+        &mut self,
+        robot: u16,
+        event: &Event,
+        world: &WorldSnapshot,
+        team: &mut Team,
+    ) -> Vec<Intent> {
+        if let (Event::Sighting(e), Some(b)) = (event, self.bots.get_mut(&robot)) {
+            if let Some(front) = FrontSighting::of(e, world.time) {
+                b.front_sighting = Some(front);
+            }
+        }
+        match event {
+            // The carrier's front receiver identified the robot ahead of it.
+            Event::Sighting(e)
+                if robot == self.holder && e.side == Side::Front && !self.turning =>
+            {
+                let Some(view) = world.robot(robot) else {
+                    return Vec::new();
+                };
+                let seen = e.robot;
+                match self.ahead(view, world) {
+                    Some((next, d)) if next == seen && d < PASS_RANGE => {}
+                    _ => return Vec::new(),
+                }
+                self.holder = seen;
+                self.passes += 1;
+                self.last_pass = world.time;
+                tracing::debug!(
+                    from = robot,
+                    to = seen,
+                    passes = self.passes,
+                    "token passed"
+                );
+                let mut out = self.leds();
+                // New speeds at once: the new carrier pulls away, the old one falls back.
+                for id in [robot, seen] {
+                    if team.following(id).is_some() {
+                        out.push(Intent::FollowLine {
+                            robot: id,
+                            speed: Some(self.speed_of(id)),
+                        });
+                    }
+                }
+                if self.passes >= self.rounds * self.order.len() as u32 {
+                    out.extend(self.finish(world));
+                }
+                out
+            }
+            Event::MoveFinished { .. } => self.pump(robot, world, team).into_iter().collect(),
+            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            _ => Vec::new(),
+        }
+    }
+
+    fn on_held(
+        &mut self,
+        intent: &Intent,
+        _reason: &str,
+        _world: &WorldSnapshot,
+        _team: &mut Team,
+    ) -> Vec<Intent> {
+        // A held move never ran: the leg stays, and the next snapshot tries it again.
+        if let Intent::Move { robot, .. } = intent {
+            if let Some(bot) = self.bots.get_mut(robot) {
+                bot.legs.held();
+            }
+        }
+        Vec::new()
+    }
+
+    fn verdict(&self) -> Option<Verdict> {
+        self.verdict.clone()
+    }
+
+    fn progress(&self) -> Vec<(String, f64)> {
+        vec![("passes".into(), f64::from(self.passes))]
+    }
+}
