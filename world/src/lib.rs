@@ -111,7 +111,7 @@ pub struct RobotStart {
 pub struct RadioModel {
     /// One-way latency in milliseconds.
     pub latency_ms: f64,
-    /// Standard deviation of the latency in milliseconds.
+    /// Jitter added to each packet's latency, milliseconds: drawn uniformly in `0..jitter_ms`.
     pub jitter_ms: f64,
     /// Probability (0..=1) that a packet is lost.
     pub loss: f64,
