@@ -53,7 +53,7 @@ pub trait Register: Behaviour + Sized {
     fn from_config(config: &BehaviourConfig) -> Result<Self, String> {
         let name = std::any::type_name::<Self>();
         let name = name.rsplit("::").next().unwrap_or(name);
-        let p = Self::Params::from_pairs(name, &config.params).map_err(|e| e.to_string())?;
+        let p = parsed(name, &config.params)?;
         Self::check(&p, config)?;
         Self::build(p, config)
     }
@@ -64,6 +64,23 @@ pub type Built = Result<Box<dyn Behaviour>, String>;
 
 /// Builds a behaviour from its config, or says what is wrong.
 pub type Constructor = fn(&BehaviourConfig) -> Built;
+
+/// `params` parsed into `P`, the error as text naming the behaviour `name`.
+fn parsed<P: Params>(name: &str, params: &BTreeMap<String, String>) -> Result<P, String> {
+    P::from_pairs(name, params).map_err(|e| e.to_string())
+}
+
+/// How an entry's behaviour is made.
+#[derive(Clone, Copy, Debug)]
+enum Make {
+    /// From its typed parameters: `check` fits them to the world, `build` builds it.
+    Typed {
+        check: fn(&'static str, &BehaviourConfig) -> Result<(), String>,
+        build: fn(&'static str, &BehaviourConfig) -> Built,
+    },
+    /// By a constructor; it takes no parameters.
+    Constructor(Constructor),
+}
 
 /// One registered behaviour: its name, what it does, the world it is meant for, its parameters,
 /// and how it is checked and built.
@@ -76,10 +93,8 @@ pub struct Entry {
     /// The world preset it is meant for.
     pub world: &'static str,
     describe: fn() -> Vec<ParamInfo>,
-    check: fn(&'static str, &BehaviourConfig) -> Result<(), String>,
-    parse: fn(&'static str, &BehaviourConfig) -> Result<(), String>,
-    build: fn(&'static str, &BehaviourConfig) -> Built,
-    constructor: Option<Constructor>,
+    parse: fn(&'static str, &BTreeMap<String, String>) -> Result<(), String>,
+    make: Make,
 }
 
 impl Entry {
@@ -94,20 +109,11 @@ impl Entry {
             description,
             world,
             describe: B::Params::describe,
-            check: |name, cfg| {
-                let p = B::Params::from_pairs(name, &cfg.params).map_err(|e| e.to_string())?;
-                B::check(&p, cfg)
+            parse: |name, params| parsed::<B::Params>(name, params).map(drop),
+            make: Make::Typed {
+                check: |name, cfg| B::check(&parsed(name, &cfg.params)?, cfg),
+                build: |name, cfg| Ok(Box::new(B::build(parsed(name, &cfg.params)?, cfg)?)),
             },
-            parse: |name, cfg| {
-                B::Params::from_pairs(name, &cfg.params)
-                    .map(drop)
-                    .map_err(|e| e.to_string())
-            },
-            build: |name, cfg| {
-                let p = B::Params::from_pairs(name, &cfg.params).map_err(|e| e.to_string())?;
-                Ok(Box::new(B::build(p, cfg)?))
-            },
-            constructor: None,
         }
     }
 
@@ -123,18 +129,8 @@ impl Entry {
             description,
             world,
             describe: NoParams::describe,
-            check: |name, cfg| {
-                NoParams::from_pairs(name, &cfg.params)
-                    .map(drop)
-                    .map_err(|e| e.to_string())
-            },
-            parse: |name, cfg| {
-                NoParams::from_pairs(name, &cfg.params)
-                    .map(drop)
-                    .map_err(|e| e.to_string())
-            },
-            build: |_, _| Err("built by its constructor".into()),
-            constructor: Some(constructor),
+            parse: |name, params| parsed::<NoParams>(name, params).map(drop),
+            make: Make::Constructor(constructor),
         }
     }
 
@@ -149,14 +145,7 @@ impl Entry {
     /// # Errors
     /// The first parameter refused, by name, with the accepted keys for an unknown one.
     pub fn check_params(&self, params: &BTreeMap<String, String>) -> Result<(), String> {
-        let config = BehaviourConfig {
-            params: params.clone(),
-            ..BehaviourConfig::default()
-        };
-        match self.constructor {
-            Some(_) => (self.check)(self.name, &config),
-            None => (self.parse)(self.name, &config),
-        }
+        (self.parse)(self.name, params)
     }
 
     /// Checks `config`'s parameters (names, types, ranges, fit with the world) without building
@@ -165,7 +154,10 @@ impl Entry {
     /// # Errors
     /// The first parameter refused, by name, with the accepted keys for an unknown one.
     pub fn check(&self, config: &BehaviourConfig) -> Result<(), String> {
-        (self.check)(self.name, config)
+        match self.make {
+            Make::Typed { check, .. } => check(self.name, config),
+            Make::Constructor(_) => self.check_params(&config.params),
+        }
     }
 
     /// Builds the behaviour.
@@ -173,12 +165,12 @@ impl Entry {
     /// # Errors
     /// A parameter refused, or a world it cannot run in.
     pub fn build(&self, config: &BehaviourConfig) -> Built {
-        match self.constructor {
-            Some(c) => {
-                self.check(config)?;
+        match self.make {
+            Make::Typed { build, .. } => build(self.name, config),
+            Make::Constructor(c) => {
+                self.check_params(&config.params)?;
                 c(config)
             }
-            None => (self.build)(self.name, config),
         }
     }
 }
