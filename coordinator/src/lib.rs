@@ -25,8 +25,8 @@ pub mod twin;
 
 pub use experiment::{run, run_with};
 pub use instruments::{Instruments, Run};
-pub use plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
-pub use report::{GroundTruth, ObstacleReport, Report, RobotReport};
+pub use plan::{load_world, Kick, KickHow, LinkFault, Plan, RandomKick, SettingWrite, Transport};
+pub use report::{GroundTruth, KickRecord, ObstacleReport, Report, RobotReport};
 pub use twin::BodyFault;
 /// The estimation layer the supervisor keeps (its own crate, re-exported for the benches).
 pub use world_model;

@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use crate::twin::BodyFault;
 use anyhow::{anyhow, bail, Result};
+pub use world::cli::{KickHow, RandomKick};
 use world::{file, presets, World};
 
 /// Where the robots come from.
@@ -52,8 +53,10 @@ pub struct Plan {
     /// Body faults of simulated robots, by robot id, present from the start (a robot that
     /// cannot move, or cannot measure that it does, to prove that verdicts need the work done).
     pub body_faults: Vec<(u16, BodyFault)>,
-    /// Kicks of simulated robots: bodies moved without their odometry knowing.
+    /// Kicks of simulated robots: bodies moved without their odometry knowing, or shoved.
     pub kicks: Vec<Kick>,
+    /// Kicks drawn per seed (`--kick random`).
+    pub random_kicks: Vec<RandomKick>,
     /// Settings written to every robot before the experiment starts.
     pub settings: Vec<SettingWrite>,
     /// Clock steps (1 ms) per physics step of simulated robots: 1 is physics at 1 kHz.
@@ -145,6 +148,7 @@ impl Plan {
             faults: Vec::new(),
             body_faults: Vec::new(),
             kicks: Vec::new(),
+            random_kicks: Vec::new(),
             settings: Vec::new(),
             physics_every: 1,
         }
@@ -228,7 +232,8 @@ impl Plan {
 }
 
 /// A kick: simulated robot `robot` (by id) is moved by (`dx_m`, `dy_m`) and turned by
-/// `dtheta_rad` at `at`, at once and without its firmware noticing, as if picked up and put down.
+/// `dtheta_rad` at `at`, as [`KickHow`] says: at once and unfelt (picked up and put down), or
+/// by a shove its sensors feel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Kick {
     /// Robot id.
@@ -244,10 +249,15 @@ pub struct Kick {
     /// Further displacement to the robot's left (negative: right) at the moment of the kick,
     /// metres: a sideways shove whatever way the robot faces then.
     pub sideways_m: f64,
+    /// Teleport or shove.
+    pub how: KickHow,
+    /// Drawn at random: the displacement is drawn at the kick's instant from this seed (a shift
+    /// and a turn clear of every other body and wall), and the fields above are ignored.
+    pub drawn: Option<u64>,
 }
 
 impl From<world::cli::KickArg> for Kick {
-    /// The kick `--kick ID:SECONDS:DX,DY[,DEG]` gives (no sideways shove).
+    /// The kick `--kick [HOW:]ID:SECONDS:DX,DY[,DEG]` gives (no sideways shove).
     fn from(k: world::cli::KickArg) -> Self {
         Self {
             robot: k.robot,
@@ -256,7 +266,32 @@ impl From<world::cli::KickArg> for Kick {
             dy_m: k.dy_m,
             dtheta_rad: k.dtheta_rad,
             sideways_m: 0.0,
+            how: k.how,
+            drawn: None,
         }
+    }
+}
+
+impl Kick {
+    /// The kick `random` draws for a run with `seed` among `robots` (ids): which robot and when;
+    /// its displacement is drawn at that instant.
+    pub fn random(r: RandomKick, seed: u64, robots: &[u16]) -> Option<Kick> {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x4B1C_4B1C_4B1C_4B1C);
+        let robot = *robots.get(rng.gen_range(0..robots.len().max(1)))?;
+        let from = 1.0;
+        let at =
+            Duration::from_secs_f64(rng.gen_range(from..r.within.as_secs_f64().max(from + 1e-3)));
+        Some(Kick {
+            robot,
+            at,
+            dx_m: 0.0,
+            dy_m: 0.0,
+            dtheta_rad: 0.0,
+            sideways_m: 0.0,
+            how: r.how,
+            drawn: Some(rng.gen()),
+        })
     }
 }
 

@@ -97,6 +97,8 @@ pub struct GroundTruth {
     pub wall_contacts: usize,
     /// When each robot–robot contact began (simulated seconds) and between which robots.
     pub collision_log: Vec<(f64, u16, u16)>,
+    /// When each robot–wall contact began (simulated seconds) and which robot touched.
+    pub wall_contact_log: Vec<(f64, u16)>,
     /// How many times the world model was checked against the true poses.
     pub model_samples: usize,
     /// The simulated robots' physics rate, Hz.
@@ -120,6 +122,56 @@ impl GroundTruth {
                 if self.wall_contacts == 1 { "" } else { "s" },
             )
         })
+    }
+}
+
+/// A kick as it landed on a simulated robot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KickRecord {
+    /// Robot id.
+    pub robot: u16,
+    /// When it landed, simulated seconds.
+    pub at_s: f64,
+    /// Teleport or shove.
+    pub how: crate::plan::KickHow,
+    /// Shift along x and y (metres) and turn (radians).
+    pub by: [f64; 3],
+    /// Why it was not given, if it was not.
+    pub refused: Option<String>,
+}
+
+impl KickRecord {
+    /// Contacts beginning up to this long after a kick's end are the kick's own: the body it
+    /// moved was still settling, and no motion approved after it could have closed a gap yet.
+    pub const OWN_CONTACT_S: f64 = 0.02;
+
+    /// When the kick's own contacts end, simulated seconds.
+    pub fn own_until_s(&self) -> f64 {
+        let lasts = match self.how {
+            crate::plan::KickHow::Teleport => 0.0,
+            crate::plan::KickHow::Shove(d) => d.as_secs_f64(),
+        };
+        self.at_s + lasts + Self::OWN_CONTACT_S
+    }
+
+    /// The kick in one line: `shove of robot 2 at 12.30 s by (+4.1, -12.0) mm and +7.5°`.
+    pub fn describe(&self) -> String {
+        let how = match self.how {
+            crate::plan::KickHow::Teleport => "teleport".to_string(),
+            crate::plan::KickHow::Shove(d) => format!("{} ms shove", d.as_millis()),
+        };
+        let mut s = format!(
+            "{how} of robot {} at {:.2} s by ({:+.1}, {:+.1}) mm and {:+.1}°",
+            self.robot,
+            self.at_s,
+            self.by[0] * 1e3,
+            self.by[1] * 1e3,
+            self.by[2].to_degrees()
+        );
+        if let Some(why) = &self.refused {
+            s.push_str(&format!(" not given: {why}"));
+        }
+        s
     }
 }
 
@@ -155,6 +207,8 @@ pub struct Report {
     /// The process's peak resident memory when the report was made, bytes (where the system
     /// says; several runs in one process share it).
     pub peak_memory_bytes: Option<u64>,
+    /// Kicks given to simulated robots, as they landed.
+    pub kicks: Vec<KickRecord>,
 }
 
 /// The peak resident set size of this process so far, bytes: `VmHWM` in `/proc/self/status`, so
@@ -200,6 +254,18 @@ struct JsonRobot {
 }
 
 #[derive(Serialize)]
+struct JsonKick {
+    robot: u16,
+    at_s: f64,
+    how: String,
+    dx_mm: f64,
+    dy_mm: f64,
+    turn_deg: f64,
+    refused: Option<String>,
+    text: String,
+}
+
+#[derive(Serialize)]
 struct JsonReport<'a> {
     behaviour: &'a str,
     world: &'a str,
@@ -213,6 +279,9 @@ struct JsonReport<'a> {
     obstacles: &'a [ObstacleReport],
     robot_collisions: Option<usize>,
     wall_contacts: Option<usize>,
+    kicks: Vec<JsonKick>,
+    contacts_at_kick: Option<usize>,
+    contacts_other: Option<usize>,
     worst_model_error_mm: Option<f64>,
     worst_model_heading_error_deg: Option<f64>,
     model_samples: Option<usize>,
@@ -252,6 +321,33 @@ impl Report {
     /// Robot–wall contacts (ground truth; simulated robots only).
     pub fn wall_contacts(&self) -> Option<usize> {
         self.ground_truth.as_ref().map(|g| g.wall_contacts)
+    }
+
+    /// Contacts (robot–robot and wall) that began while a kick was landing, and those that began
+    /// at any other time: the first the kick caused, the second the supervision let happen
+    /// (simulated robots only).
+    pub fn contacts_at_kick_and_other(&self) -> Option<(usize, usize)> {
+        let g = self.ground_truth.as_ref()?;
+        let at_kick = |t: f64| {
+            self.kicks
+                .iter()
+                .filter(|k| k.refused.is_none())
+                .any(|k| t >= k.at_s - 1e-9 && t <= k.own_until_s())
+        };
+        let times = g
+            .collision_log
+            .iter()
+            .map(|c| c.0)
+            .chain(g.wall_contact_log.iter().map(|c| c.0));
+        let (mut own, mut other) = (0, 0);
+        for t in times {
+            if at_kick(t) {
+                own += 1;
+            } else {
+                other += 1;
+            }
+        }
+        Some((own, other))
     }
 
     /// The world model's worst position error against ground truth over every robot and the
@@ -344,6 +440,25 @@ impl Report {
             obstacles: &self.obstacles,
             robot_collisions: self.robot_collisions(),
             wall_contacts: self.wall_contacts(),
+            kicks: self
+                .kicks
+                .iter()
+                .map(|k| JsonKick {
+                    robot: k.robot,
+                    at_s: k.at_s,
+                    how: match k.how {
+                        crate::plan::KickHow::Teleport => "teleport".into(),
+                        crate::plan::KickHow::Shove(d) => format!("shove/{}", d.as_millis()),
+                    },
+                    dx_mm: k.by[0] * 1e3,
+                    dy_mm: k.by[1] * 1e3,
+                    turn_deg: k.by[2].to_degrees(),
+                    refused: k.refused.clone(),
+                    text: k.describe(),
+                })
+                .collect(),
+            contacts_at_kick: self.contacts_at_kick_and_other().map(|c| c.0),
+            contacts_other: self.contacts_at_kick_and_other().map(|c| c.1),
             worst_model_error_mm: self.worst_model_error_m().map(|e| e * 1e3),
             worst_model_heading_error_deg: self
                 .worst_model_heading_error_rad()
@@ -453,6 +568,20 @@ impl Report {
             for (t, a, b) in g.collision_log.iter().take(5) {
                 writeln!(f, "    at {t:.2} s: robots {a} and {b}")?;
             }
+            for (t, r) in g.wall_contact_log.iter().take(5) {
+                writeln!(f, "    at {t:.2} s: robot {r} and the wall")?;
+            }
+            for k in &self.kicks {
+                writeln!(f, "  kick: {}", k.describe())?;
+            }
+            if let (false, Some((own, other))) =
+                (self.kicks.is_empty(), self.contacts_at_kick_and_other())
+            {
+                writeln!(
+                    f,
+                    "  contacts: {own} while a kick landed, {other} at other times (supervised)"
+                )?;
+            }
             if let (Some(e), Some(h)) = (
                 self.worst_model_error_m(),
                 self.worst_model_heading_error_rad(),
@@ -531,6 +660,7 @@ mod tests {
                 robot_contacts: contacts.0,
                 wall_contacts: contacts.1,
                 collision_log: vec![(1.5, 1, 2); contacts.0],
+                wall_contact_log: vec![(3.0, 1); contacts.1],
                 model_samples: 100,
                 physics_hz: 1000,
             }),
@@ -543,7 +673,35 @@ mod tests {
             experiment_time: Duration::from_secs(10),
             wall_time: Duration::from_secs(1),
             peak_memory_bytes: Some(50_000_000),
+            kicks: Vec::new(),
         }
+    }
+
+    #[test]
+    fn contacts_while_a_kick_lands_are_told_from_the_others() {
+        let mut r = report((2, 1));
+        assert_eq!(r.contacts_at_kick_and_other(), Some((0, 3)));
+        r.kicks.push(KickRecord {
+            robot: 1,
+            at_s: 1.48,
+            how: crate::plan::KickHow::Shove(Duration::from_millis(20)),
+            by: [0.01, 0.0, 0.0],
+            refused: None,
+        });
+        // Both robot contacts began 20 ms into the shove; the wall contact long after.
+        assert_eq!(r.contacts_at_kick_and_other(), Some((2, 1)));
+        assert!(
+            r.to_string()
+                .contains("2 while a kick landed, 1 at other times"),
+            "{r}"
+        );
+        let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert_eq!(json["contacts_at_kick"], 2);
+        assert_eq!(json["contacts_other"], 1);
+        assert!(json["kicks"][0]["text"]
+            .as_str()
+            .unwrap()
+            .starts_with("20 ms shove of robot 1 at 1.48 s by (+10.0, +0.0) mm"));
     }
 
     #[test]

@@ -15,7 +15,10 @@ fn plan(behaviour: &str, robots: usize) -> Plan {
 
 /// A kick as `coordinator --kick` takes it.
 fn kick(spec: &str) -> coordinator::Kick {
-    world::cli::parse_kick(spec).expect("a kick").into()
+    match world::cli::parse_kick(spec).expect("a kick") {
+        world::cli::KickSpec::Given(k) => k.into(),
+        other => panic!("{spec}: not a given kick: {other:?}"),
+    }
 }
 
 fn run(plan: Plan, registry: &Registry) -> Report {

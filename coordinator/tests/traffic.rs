@@ -102,6 +102,8 @@ fn a_robot_kicked_sideways_is_found_lost_stopped_and_relocalised_without_contact
         dy_m: 0.0,
         dtheta_rad: 0.0,
         sideways_m: 0.03,
+        how: coordinator::KickHow::Teleport,
+        drawn: None,
     });
     let r = coordinator::run_blocking(plan, &Registry::builtin()).expect("experiment runs");
     assert!(r.success(), "{r}");

@@ -72,7 +72,12 @@ async fn a_kick_lands_at_its_simulated_time_and_poses_report_it() {
     let sim = Simulation::new(presets::preset("oval").unwrap(), SimConfig::default());
     let start = sim.robots()[1].pose();
     let (handle, _ends, task) = runtime::spawn(sim, Pace::TokioClock);
-    handle.displace_at(Duration::from_millis(500), 1, 0.0, 0.04, 0.0);
+    handle.kick_at(
+        Duration::from_millis(500),
+        1,
+        [0.0, 0.04, 0.0],
+        world::cli::KickHow::Teleport,
+    );
     // Paused-clock time is simulated time.
     tokio::time::sleep(Duration::from_millis(400)).await;
     let before = handle.poses().await.unwrap();

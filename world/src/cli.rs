@@ -48,6 +48,19 @@ pub fn parse_physics_hz(text: &str) -> Result<u32, String> {
     Ok(1000 / hz)
 }
 
+/// How a kick moves a robot.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KickHow {
+    /// Picked up and put down: the body is moved at once and nothing on the robot feels it.
+    Teleport,
+    /// Shoved by a hand over this long (20–100 ms): the wheels drag, the accelerometer feels
+    /// the jolt, and a body in the way stops it.
+    Shove(std::time::Duration),
+}
+
+/// A shove lasts this long unless the flag says otherwise.
+pub const DEFAULT_SHOVE: std::time::Duration = std::time::Duration::from_millis(50);
+
 /// A kick from the command line: robot id, when (simulated time from the start), and the
 /// displacement (metres along x and y, radians counter-clockwise).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,13 +75,85 @@ pub struct KickArg {
     pub dy_m: f64,
     /// Turn, radians counter-clockwise.
     pub dtheta_rad: f64,
+    /// Teleport or shove.
+    pub how: KickHow,
 }
 
-/// Parses `ID:SECONDS:DX,DY[,DEG]` (metres and degrees), e.g. `2:5:0,0.03` or `2:5:0,0.03,15`;
-/// for clap's `value_parser`.
-pub fn parse_kick(text: &str) -> Result<KickArg, String> {
-    let usage = || format!("{text:?}: expected ID:SECONDS:DX,DY[,DEG], e.g. 2:5:0,0.03,15");
-    let mut parts = text.splitn(3, ':');
+/// A kick drawn per seed: one robot, a time in the window, a shift of up to
+/// [`RANDOM_SHIFT_M`] in any direction and a turn of up to [`RANDOM_TURN_DEG`] either way,
+/// uniformly, never into an overlap with another body or a wall at that instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RandomKick {
+    /// Teleport or shove.
+    pub how: KickHow,
+    /// The time is drawn uniformly from one second to this, after the robots are connected.
+    pub within: std::time::Duration,
+}
+
+/// The largest shift and turn a random kick draws.
+pub const RANDOM_SHIFT_M: f64 = 0.03;
+/// See [`RANDOM_SHIFT_M`].
+pub const RANDOM_TURN_DEG: f64 = 20.0;
+/// The window a random kick's time is drawn from unless the flag says otherwise, seconds.
+pub const RANDOM_WITHIN_S: f64 = 30.0;
+
+/// A `--kick` flag: a given kick or one drawn per seed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum KickSpec {
+    /// This kick.
+    Given(KickArg),
+    /// One drawn per seed.
+    Random(RandomKick),
+}
+
+const KICK_USAGE: &str = "expected [teleport:|shove[/MS]:]ID:SECONDS:DX,DY[,DEG] or \
+                          random[:teleport|:shove[/MS]][:WITHIN_SECONDS], e.g. 2:5:0,0.03,15, \
+                          shove:2:5:0,0.015 or random:teleport";
+
+/// Parses a `--kick` flag; for clap's `value_parser`:
+/// - `ID:SECONDS:DX,DY[,DEG]` or `teleport:ID:…`: robot ID moved at once by DX, DY metres and
+///   turned by DEG degrees, SECONDS after the robots are connected;
+/// - `shove:ID:…` or `shove/MS:ID:…`: the same displacement given by a hand over 50 ms (or MS,
+///   20 to 100);
+/// - `random`, `random:shove[/MS]`, `random:teleport`, each optionally followed by
+///   `:WITHIN_SECONDS`: a kick drawn per seed (a shove unless it says teleport), at a time from
+///   one second to WITHIN_SECONDS (30 unless given).
+pub fn parse_kick(text: &str) -> Result<KickSpec, String> {
+    let usage = || format!("{text:?}: {KICK_USAGE}");
+    let t = text.trim();
+    if let Some(rest) = t.strip_prefix("random") {
+        if !(rest.is_empty() || rest.starts_with(':')) {
+            return Err(usage());
+        }
+        let mut parts = rest
+            .strip_prefix(':')
+            .into_iter()
+            .flat_map(|r| r.split(':'));
+        let mut how = KickHow::Shove(DEFAULT_SHOVE);
+        let mut within = std::time::Duration::from_secs_f64(RANDOM_WITHIN_S);
+        let mut next = parts.next();
+        if let Some(h) = next.filter(|h| h.starts_with("teleport") || h.starts_with("shove")) {
+            how = parse_how(h).map_err(|e| format!("{text:?}: {e}"))?;
+            next = parts.next();
+        }
+        if let Some(w) = next {
+            within = parse_duration(w).map_err(|e| format!("{text:?}: window: {e}"))?;
+            if within <= std::time::Duration::from_secs(1) {
+                return Err(format!("{text:?}: the window must end after one second"));
+            }
+        }
+        if parts.next().is_some() {
+            return Err(usage());
+        }
+        return Ok(KickSpec::Random(RandomKick { how, within }));
+    }
+    let (how, given) = match t.split_once(':') {
+        Some((h, rest)) if h.starts_with("teleport") || h.starts_with("shove") => {
+            (parse_how(h).map_err(|e| format!("{text:?}: {e}"))?, rest)
+        }
+        _ => (KickHow::Teleport, t),
+    };
+    let mut parts = given.splitn(3, ':');
     let (Some(id), Some(at), Some(by)) = (parts.next(), parts.next(), parts.next()) else {
         return Err(usage());
     };
@@ -95,13 +180,32 @@ pub fn parse_kick(text: &str) -> Result<KickArg, String> {
             "{text:?}: a kick moves a robot at most {MAX_KICK_M} m along each axis"
         ));
     }
-    Ok(KickArg {
+    Ok(KickSpec::Given(KickArg {
         robot,
         at,
         dx_m: values[0],
         dy_m: values[1],
         dtheta_rad: values[2].to_radians(),
-    })
+        how,
+    }))
+}
+
+/// `teleport`, `shove` or `shove/MS`.
+fn parse_how(text: &str) -> Result<KickHow, String> {
+    match text {
+        "teleport" => Ok(KickHow::Teleport),
+        "shove" => Ok(KickHow::Shove(DEFAULT_SHOVE)),
+        _ => {
+            let ms = text
+                .strip_prefix("shove/")
+                .and_then(|ms| ms.trim().parse::<u64>().ok())
+                .ok_or_else(|| format!("{text:?} is not teleport, shove or shove/MS"))?;
+            if !(20..=100).contains(&ms) {
+                return Err(format!("a shove lasts 20 to 100 ms, not {ms}"));
+            }
+            Ok(KickHow::Shove(std::time::Duration::from_millis(ms)))
+        }
+    }
 }
 
 /// The farthest a kick moves a robot along each axis, metres: beyond it the robot leaves any
@@ -153,27 +257,70 @@ mod tests {
         );
     }
 
+    fn given(spec: &str) -> KickArg {
+        match parse_kick(spec) {
+            Ok(KickSpec::Given(k)) => k,
+            other => panic!("{spec}: {other:?}"),
+        }
+    }
+
     #[test]
     fn kicks_parse_with_and_without_a_turn_and_bad_ones_are_named() {
-        let k = parse_kick("2:5:0,0.03").unwrap();
+        let k = given("2:5:0,0.03");
         assert_eq!(
-            (k.robot, k.at, k.dx_m, k.dy_m, k.dtheta_rad),
-            (2, std::time::Duration::from_secs(5), 0.0, 0.03, 0.0)
+            (k.robot, k.at, k.dx_m, k.dy_m, k.dtheta_rad, k.how),
+            (
+                2,
+                std::time::Duration::from_secs(5),
+                0.0,
+                0.03,
+                0.0,
+                KickHow::Teleport
+            )
         );
-        let k = parse_kick("7:0.5:-0.01,0.02,90").unwrap();
+        let k = given("7:0.5:-0.01,0.02,90");
         assert!((k.dtheta_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert_eq!(given("shove:1:2:0,0.01").how, KickHow::Shove(DEFAULT_SHOVE));
+        assert_eq!(
+            given("shove/80:1:2:0,0.01").how,
+            KickHow::Shove(std::time::Duration::from_millis(80))
+        );
+        assert_eq!(given("teleport:1:2:0,0.01").how, KickHow::Teleport);
         for (bad, says) in [
-            ("2:5", "expected ID:SECONDS"),
+            ("2:5", "expected [teleport"),
             ("x:5:0,0", "robot id"),
             ("2:-1:0,0", "when"),
-            ("2:5:0", "expected ID:SECONDS"),
-            ("2:5:0,0,1,2", "expected ID:SECONDS"),
+            ("2:5:0", "expected [teleport"),
+            ("2:5:0,0,1,2", "expected [teleport"),
             ("2:5:0,NaN", "not a finite number"),
             ("2:5:30,0", "at most"),
+            ("shove/5:2:5:0,0", "20 to 100"),
+            ("shove/x:2:5:0,0", "not teleport, shove"),
+            ("randomly", "expected [teleport"),
+            ("random:shove:0.5", "after one second"),
+            ("random:teleport:30:4", "expected [teleport"),
         ] {
             let e = parse_kick(bad).expect_err(bad);
             assert!(e.contains(says) && e.contains(bad), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn random_kicks_are_shoves_unless_they_say_teleport() {
+        let r = |s| match parse_kick(s) {
+            Ok(KickSpec::Random(r)) => (r.how, r.within.as_secs_f64()),
+            other => panic!("{s}: {other:?}"),
+        };
+        assert_eq!(
+            r("random"),
+            (KickHow::Shove(DEFAULT_SHOVE), RANDOM_WITHIN_S)
+        );
+        assert_eq!(r("random:teleport"), (KickHow::Teleport, RANDOM_WITHIN_S));
+        assert_eq!(r("random:4"), (KickHow::Shove(DEFAULT_SHOVE), 4.0));
+        assert_eq!(
+            r("random:shove/20:12"),
+            (KickHow::Shove(std::time::Duration::from_millis(20)), 12.0)
+        );
     }
 
     #[test]

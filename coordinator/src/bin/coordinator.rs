@@ -92,9 +92,13 @@ struct Args {
     #[arg(long, value_name = "FILE.svg")]
     plot: Option<PathBuf>,
     /// Kick simulated robot ID at SECONDS of experiment time by DX,DY metres and DEG degrees
-    /// (repeatable): its body moves at once and its odometry never learns of it.
-    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = world::cli::parse_kick)]
-    kick: Vec<world::cli::KickArg>,
+    /// (repeatable). HOW is `teleport` (the default: the body moves at once and nothing on the
+    /// robot feels it) or `shove[/MS]` (a hand pushes it over 50 ms or MS, 20–100: the wheels
+    /// drag and the accelerometer feels it). `random[:HOW][:SECONDS]` draws per seed one robot,
+    /// a time from 1 s to SECONDS (30), a shift of up to 3 cm and a turn of up to 20°, never
+    /// into another body or a wall; a shove unless HOW says teleport.
+    #[arg(long, value_name = "[HOW:]ID:SECONDS:DX,DY[,DEG] | random[:HOW][:SECONDS]", value_parser = world::cli::parse_kick)]
+    kick: Vec<world::cli::KickSpec>,
     /// Write robot setting PATH (a field of the robot's settings, e.g. watchdog.timeout_ms) to
     /// VALUE on every robot before the experiment starts (repeatable); each robot gets it again
     /// after a reconnect. A value the robot refuses ends the run before it starts.
@@ -286,8 +290,18 @@ fn plan(args: &Args) -> Result<Plan> {
         kicks: args
             .kick
             .iter()
-            .copied()
-            .map(coordinator::Kick::from)
+            .filter_map(|k| match *k {
+                world::cli::KickSpec::Given(k) => Some(coordinator::Kick::from(k)),
+                world::cli::KickSpec::Random(_) => None,
+            })
+            .collect(),
+        random_kicks: args
+            .kick
+            .iter()
+            .filter_map(|k| match *k {
+                world::cli::KickSpec::Random(r) => Some(r),
+                world::cli::KickSpec::Given(_) => None,
+            })
             .collect(),
         settings: args.settings.clone(),
         physics_every: args.physics_every,

@@ -25,7 +25,7 @@ use world::{Track, World};
 use crate::instruments::observer::{Instruments, Observer};
 use crate::instruments::{Hooks, Run};
 use crate::plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
-use crate::report::{GroundTruth, ObstacleReport, Report, RobotReport};
+use crate::report::{GroundTruth, KickRecord, ObstacleReport, Report, RobotReport};
 use crate::supervisor::{Abort, Outcome, Supervisor};
 use crate::twin::{SimHandle, Truth};
 use world_model::safety::Safety;
@@ -74,9 +74,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     hooks.serve_panel(&supervisor, &robots, world).await?;
     // From here to the verdict the model is checked against the ground truth.
     let sampler = ModelSampler::start(sim.as_ref(), &model);
-    if let Some(h) = &sim {
-        inject_faults(h, &plan.faults, &setup.kicks);
-    }
+    let kicks = sim
+        .as_ref()
+        .map(|h| inject_faults(h, &plan.faults, &setup.kicks));
     let started = tokio::time::Instant::now();
     let progress = progress_bar(plan.duration, started);
     let outcome = await_verdict(&supervisor, done, plan.duration).await?;
@@ -103,7 +103,10 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     if let Some(h) = &sim {
         h.stop();
     }
-    let report = build_report(&plan, world, ending, per_robot, wall.elapsed());
+    let kicks = kicks
+        .map(|k| k.lock().unwrap_or_else(|e| e.into_inner()).clone())
+        .unwrap_or_default();
+    let report = build_report(&plan, world, ending, per_robot, wall.elapsed(), kicks);
     hooks.finish(report, &observer).await
 }
 
@@ -161,7 +164,8 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
     if !plan.body_faults.is_empty() && plan.transport != Transport::Sim {
         bail!("body faults can only be injected into simulated robots (transport sim)");
     }
-    if !plan.kicks.is_empty() && plan.transport != Transport::Sim {
+    let kicked = !(plan.kicks.is_empty() && plan.random_kicks.is_empty());
+    if kicked && plan.transport != Transport::Sim {
         bail!("only simulated robots can be kicked (transport sim)");
     }
     let mut kicks = Vec::new();
@@ -173,6 +177,21 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
             bail!("kick of robot {}: the displacement must be finite", k.robot);
         }
         kicks.push((index, *k));
+    }
+    let ids: Vec<u16> = world.robots.iter().map(|r| r.id).collect();
+    for (n, r) in plan.random_kicks.iter().enumerate() {
+        // A second random kick in one run draws from its own stream.
+        let seed = plan.seed.wrapping_add((n as u64) << 32);
+        if let Some(k) = Kick::random(*r, seed, &ids) {
+            kicks.push((
+                world
+                    .robots
+                    .iter()
+                    .position(|w| w.id == k.robot)
+                    .unwrap_or(0),
+                k,
+            ));
+        }
     }
     Ok(Setup {
         world_name,

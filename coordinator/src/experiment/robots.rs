@@ -114,8 +114,13 @@ pub(super) async fn start_simulation(_: &Plan, _: &World) -> Result<(SimHandle, 
 }
 
 #[cfg(feature = "sim")]
-/// Schedules the plan's link cuts and kicks on the simulation's clock.
-pub(super) fn inject_faults(h: &SimHandle, faults: &[LinkFault], kicks: &[(usize, Kick)]) {
+/// Schedules the plan's link cuts and kicks on the simulation's clock; each kick is recorded
+/// as it lands.
+pub(super) fn inject_faults(
+    h: &SimHandle,
+    faults: &[LinkFault],
+    kicks: &[(usize, Kick)],
+) -> Arc<std::sync::Mutex<Vec<KickRecord>>> {
     for fault in faults.iter().copied() {
         let h = h.clone();
         tokio::spawn(async move {
@@ -125,37 +130,67 @@ pub(super) fn inject_faults(h: &SimHandle, faults: &[LinkFault], kicks: &[(usize
             h.set_link_up(fault.robot, true);
         });
     }
+    let records = Arc::new(std::sync::Mutex::new(Vec::new()));
     for &(index, kick) in kicks {
         let h = h.clone();
+        let records = Arc::clone(&records);
         tokio::spawn(async move {
             tokio::time::sleep(kick.at).await;
-            let (mut dx, mut dy) = (kick.dx_m, kick.dy_m);
-            if kick.sideways_m != 0.0 {
-                let heading = h
-                    .poses()
-                    .await
-                    .and_then(|p| p.robots.get(index).map(|(_, p)| p.theta))
-                    .unwrap_or(0.0);
-                dx -= kick.sideways_m * heading.sin();
-                dy += kick.sideways_m * heading.cos();
-            }
-            match h.displace(index, dx, dy, kick.dtheta_rad).await {
-                Ok(p) => tracing::info!(
-                    robot = kick.robot,
-                    x = p.x,
-                    y = p.y,
-                    theta = p.theta,
-                    "kicked"
-                ),
-                Err(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
+            let record = h.inspect(move |sim| land_kick(sim, index, kick)).await;
+            if let Some(record) = record {
+                match &record.refused {
+                    None => tracing::info!(robot = kick.robot, by = ?record.by, "kicked"),
+                    Some(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
+                }
+                records
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(record);
             }
         });
     }
+    records
+}
+
+/// Gives `kick` to robot `index` now: its displacement drawn here when it is random, turned
+/// into the robot's frame when it is sideways.
+#[cfg(feature = "sim")]
+fn land_kick(sim: &mut Simulation, index: usize, kick: Kick) -> KickRecord {
+    let heading = sim.robots()[index].pose().theta;
+    let by = match kick.drawn {
+        Some(seed) => sim.draw_kick(
+            index,
+            seed,
+            world::cli::RANDOM_SHIFT_M,
+            world::cli::RANDOM_TURN_DEG.to_radians(),
+        ),
+        None => Some([
+            kick.dx_m - kick.sideways_m * heading.sin(),
+            kick.dy_m + kick.sideways_m * heading.cos(),
+            kick.dtheta_rad,
+        ]),
+    };
+    let mut record = KickRecord {
+        robot: kick.robot,
+        at_s: sim.now().as_secs_f64(),
+        how: kick.how,
+        by: by.unwrap_or_default(),
+        refused: None,
+    };
+    record.refused = match by {
+        None => Some("no clear shift and turn was found in 200 draws".into()),
+        Some(by) => sim.kick(index, by, kick.how).err(),
+    };
+    record
 }
 
 /// Without the simulator there is no simulation to inject faults into.
 #[cfg(not(feature = "sim"))]
-pub(super) fn inject_faults(h: &SimHandle, _: &[LinkFault], _: &[(usize, Kick)]) {
+pub(super) fn inject_faults(
+    h: &SimHandle,
+    _: &[LinkFault],
+    _: &[(usize, Kick)],
+) -> Arc<std::sync::Mutex<Vec<KickRecord>>> {
     match *h {}
 }
 

@@ -82,6 +82,7 @@ pub(super) fn build_report(
     ending: Ending,
     robots: Vec<RobotReport>,
     wall_time: Duration,
+    kicks: Vec<KickRecord>,
 ) -> Report {
     let Ending {
         outcome,
@@ -103,6 +104,7 @@ pub(super) fn build_report(
             robot_contacts: t.robot_collisions,
             wall_contacts: t.wall_contacts,
             collision_log: t.collision_log.clone(),
+            wall_contact_log: t.wall_contact_log.clone(),
             model_samples: model_errors.samples,
             physics_hz: plan.physics_hz(),
         }),
@@ -117,6 +119,7 @@ pub(super) fn build_report(
         experiment_time,
         wall_time,
         peak_memory_bytes: crate::report::peak_memory_bytes(),
+        kicks,
     }
 }
 

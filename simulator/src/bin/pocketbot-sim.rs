@@ -46,10 +46,11 @@ struct Args {
     /// still runs and answers, but it cannot move, or cannot measure that it does.
     #[arg(long, value_name = "ID:FAULT", value_parser = parse_body_fault)]
     body_fault: Vec<(u16, simulator::BodyFault)>,
-    /// Kick robot ID at SECONDS of simulated time by DX,DY metres and DEG degrees (repeatable):
-    /// its body moves at once and its odometry never learns of it.
-    #[arg(long, value_name = "ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
-    kick: Vec<simulator::cli::KickArg>,
+    /// Kick robot ID at SECONDS of simulated time by DX,DY metres and DEG degrees (repeatable).
+    /// HOW is `teleport` (the default: the body moves at once and its odometry never learns of
+    /// it) or `shove[/MS]` (a hand pushes it over 50 ms or MS: wheels and accelerometer feel it).
+    #[arg(long, value_name = "[HOW:]ID:SECONDS:DX,DY[,DEG]", value_parser = simulator::cli::parse_kick)]
+    kick: Vec<simulator::cli::KickSpec>,
     /// Write the ground truth (true poses, boxes, contacts, wheel speeds, host silences) as JSON
     /// to FILE every second and at exit, so another process can judge what happened.
     #[arg(long, value_name = "FILE")]
@@ -114,6 +115,9 @@ async fn main() -> Result<()> {
     }
     let mut kicks = Vec::new();
     for k in &args.kick {
+        let simulator::cli::KickSpec::Given(k) = k else {
+            anyhow::bail!("--kick random: kicks drawn per seed are the coordinator's to draw");
+        };
         let i = sim
             .robot_index(k.robot)
             .with_context(|| format!("--kick {}: no robot {} in the world", k.robot, k.robot))?;
@@ -137,7 +141,7 @@ async fn main() -> Result<()> {
     }
     println!("serving {} robots", addrs.len());
     for (i, k) in kicks {
-        handle.displace_at(k.at, i, k.dx_m, k.dy_m, k.dtheta_rad);
+        handle.kick_at(k.at, i, [k.dx_m, k.dy_m, k.dtheta_rad], k.how);
     }
     let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut written: Option<std::time::Instant> = None;

@@ -54,12 +54,11 @@ impl SimHandle {
         rx.await.map_err(|_| stopped())?
     }
 
-    /// Kicks robot `index` as [`displace`](Self::displace) does, at simulated time `at` exactly
-    /// however fast the simulation runs (at once if that time has passed). The outcome is logged.
-    pub fn displace_at(&self, at: Duration, index: usize, dx: f64, dy: f64, dtheta: f64) {
-        let _ = self
-            .commands
-            .send(Command::DisplaceAt(at, index, [dx, dy, dtheta]));
+    /// Kicks robot `index` by `by` (x, y metres, turn radians) as `how` says, at simulated time
+    /// `at` exactly however fast the simulation runs (at once if that time has passed). The
+    /// outcome is logged.
+    pub fn kick_at(&self, at: Duration, index: usize, by: [f64; 3], how: world::cli::KickHow) {
+        let _ = self.commands.send(Command::DisplaceAt(at, index, by, how));
     }
 
     /// Runs `f` on the simulation between two steps and returns its result: any ground truth a

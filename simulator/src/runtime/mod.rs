@@ -54,7 +54,7 @@ enum Command {
     Truth(oneshot::Sender<Truth>),
     Poses(oneshot::Sender<Poses>),
     Displace(usize, [f64; 3], oneshot::Sender<Result<Pose, String>>),
-    DisplaceAt(Duration, usize, [f64; 3]),
+    DisplaceAt(Duration, usize, [f64; 3], world::cli::KickHow),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }

@@ -89,7 +89,7 @@ pub(super) async fn step_loop(
     let dt = sim.dt();
     let wall_start = tokio::time::Instant::now();
     let sim_start = sim.now();
-    let mut kicks: Vec<(Duration, usize, [f64; 3])> = Vec::new();
+    let mut kicks: Vec<Kick> = Vec::new();
     loop {
         while let Ok(c) = commands.try_recv() {
             if obey(&mut sim, c, &to_robot, &mut kicks).is_break() {
@@ -114,12 +114,15 @@ pub(super) async fn step_loop(
     }
 }
 
+/// A kick waiting for its time: when, which robot, by how much and how.
+type Kick = (Duration, usize, [f64; 3], world::cli::KickHow);
+
 /// Carries out one command; breaks on [`Command::Stop`].
 fn obey(
     sim: &mut Simulation,
     c: Command,
     to_robot: &[Arc<HostBuffer>],
-    kicks: &mut Vec<(Duration, usize, [f64; 3])>,
+    kicks: &mut Vec<Kick>,
 ) -> ControlFlow<()> {
     match c {
         Command::Connect(i) => sim.connect(i),
@@ -145,7 +148,7 @@ fn obey(
         Command::Displace(i, [dx, dy, dtheta], reply) => {
             let _ = reply.send(sim.displace(i, dx, dy, dtheta));
         }
-        Command::DisplaceAt(at, i, by) => kicks.push((at, i, by)),
+        Command::DisplaceAt(at, i, by, how) => kicks.push((at, i, by, how)),
         Command::Inspect(job) => job(sim),
         Command::Stop => return ControlFlow::Break(()),
     }
@@ -153,15 +156,15 @@ fn obey(
 }
 
 /// Kicks every robot whose kick is due at the simulation's time, and forgets those kicks.
-fn start_due_kicks(sim: &mut Simulation, kicks: &mut Vec<(Duration, usize, [f64; 3])>) {
-    kicks.retain(|&(at, i, [dx, dy, dtheta])| {
+fn start_due_kicks(sim: &mut Simulation, kicks: &mut Vec<Kick>) {
+    kicks.retain(|&(at, i, by, how)| {
         if sim.now() < at {
             return true;
         }
-        match sim.displace(i, dx, dy, dtheta) {
-            Ok(p) => {
+        match sim.kick(i, by, how) {
+            Ok(()) => {
                 let robot = sim.robots()[i].id();
-                tracing::info!(robot, x = p.x, y = p.y, theta = p.theta, "kicked");
+                tracing::info!(robot, ?by, ?how, "kicked");
             }
             Err(e) => tracing::warn!("{e}"),
         }

@@ -292,6 +292,7 @@ fn boot_robot(
             start.heading_rad.sin_cos(),
         ); 2],
         lit: Vec::new(),
+        shove: None,
     }
 }
 

@@ -39,7 +39,12 @@ pub(super) fn drive_robot(
     let v_body = [f64::from(body.linvel().x), f64::from(body.linvel().y)];
     let w_body = f64::from(body.angvel());
     let still = |w: &WheelState| w.omega == 0.0 && w.current_a == 0.0;
-    if pwm == (0, 0) && r.wheels.iter().all(still) && v_body == [0.0; 2] && w_body == 0.0 {
+    if pwm == (0, 0)
+        && r.wheels.iter().all(still)
+        && v_body == [0.0; 2]
+        && w_body == 0.0
+        && r.shove.is_none()
+    {
         // At rest with the motors off nothing turns, pushes or draws current: the step would
         // compute zeros. Only the battery's idle drain goes on.
         drain_battery(spec, r, pwm, step);
@@ -67,6 +72,10 @@ pub(super) fn drive_robot(
         }
         let t = t0 as f64 * 1e-9 + f64::from(k) * dt;
         (v, omega) = fixed.substep(r, (s, c), (v, omega), t);
+        // A hand moving the body sets its velocity whatever the tyres did; they dragged meanwhile.
+        if let Some(hand) = r.shove.and_then(|h| h.velocity(t + dt)) {
+            (v, omega) = hand;
+        }
         // As rapier integrates: the new velocity over the whole sub-step.
         moved[0] += v[0] * dt;
         moved[1] += v[1] * dt;

@@ -116,3 +116,149 @@ impl Simulation {
         self.flush_outgoing(i);
     }
 }
+
+/// A shove under way: a hand that grips the body and moves it along a half-sine velocity
+/// profile, so that it starts and ends at rest and covers exactly the shove's displacement.
+/// The tyres drag on the floor meanwhile (turning the wheels a shove along the heading moves
+/// them) and the accelerometer feels the hand's acceleration, as on a real robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Shove {
+    /// When the hand starts, simulated seconds.
+    start_s: f64,
+    /// How long it pushes, seconds.
+    duration_s: f64,
+    /// Displacement along x and y (metres) and turn (radians) it gives in all.
+    by: [f64; 3],
+}
+
+impl Shove {
+    /// The hand's velocity (linear, angular) at `t_s`, `None` outside the shove.
+    pub(super) fn velocity(&self, t_s: f64) -> Option<([f64; 2], f64)> {
+        let f = (t_s - self.start_s) / self.duration_s;
+        if !(0.0..=1.0).contains(&f) {
+            return None;
+        }
+        // ∫₀ᴰ (π / 2D)·sin(πt/D) dt = 1.
+        let k = std::f64::consts::FRAC_PI_2 / self.duration_s * (std::f64::consts::PI * f).sin();
+        Some(([self.by[0] * k, self.by[1] * k], self.by[2] * k))
+    }
+
+    /// Whether the shove is over at `t_s`.
+    pub(super) fn over(&self, t_s: f64) -> bool {
+        t_s >= self.start_s + self.duration_s
+    }
+}
+
+/// Clearance a drawn kick keeps from every other body and wall at its instant, metres.
+const KICK_CLEARANCE_M: f64 = 0.001;
+
+/// Shoves last at least and at most this long: a bump, not a slow carry.
+pub const SHOVE_DURATION: std::ops::RangeInclusive<std::time::Duration> =
+    std::time::Duration::from_millis(20)..=std::time::Duration::from_millis(100);
+
+impl Simulation {
+    /// Kicks robot `i` by `by` (x, y metres, turn radians) as `how` says: a teleport
+    /// ([`displace`](Self::displace)) or a [`shove`](Self::shove).
+    ///
+    /// # Errors
+    /// As [`displace`](Self::displace) and [`shove`](Self::shove).
+    pub fn kick(&mut self, i: usize, by: [f64; 3], how: world::cli::KickHow) -> Result<(), String> {
+        match how {
+            world::cli::KickHow::Teleport => self.displace(i, by[0], by[1], by[2]).map(|_| ()),
+            world::cli::KickHow::Shove(d) => self.shove(i, (by[0], by[1], by[2]), d),
+        }
+    }
+
+    /// A kick of robot `i` drawn from `seed`: a shift of up to `max_shift_m` in a direction and
+    /// a turn of up to `max_turn_rad` either way, each uniform, redrawn until
+    /// [`kick_is_clear`](Self::kick_is_clear); `None` when 200 draws found no clear one.
+    pub fn draw_kick(
+        &self,
+        i: usize,
+        seed: u64,
+        max_shift_m: f64,
+        max_turn_rad: f64,
+    ) -> Option<[f64; 3]> {
+        use rand::Rng;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        (0..200).find_map(|_| {
+            let shift = rng.gen_range(0.0..=max_shift_m);
+            let towards = rng.gen_range(0.0..std::f64::consts::TAU);
+            let turn = rng.gen_range(-max_turn_rad..=max_turn_rad);
+            let by = [shift * towards.cos(), shift * towards.sin(), turn];
+            self.kick_is_clear(i, (by[0], by[1], by[2])).then_some(by)
+        })
+    }
+
+    /// Shoves robot `i` by (`dx`, `dy`) metres and `dtheta` radians over `duration`, starting
+    /// now: a hand moves the body, overpowering its motors, and lets go at rest. Unlike
+    /// [`displace`](Self::displace), the wheels, encoders and accelerometer feel it, and a body
+    /// in the way stops it (a contact).
+    ///
+    /// # Errors
+    /// There is no robot `i`, the displacement is not finite, or the duration is outside
+    /// [`SHOVE_DURATION`].
+    pub fn shove(
+        &mut self,
+        i: usize,
+        (dx, dy, dtheta): (f64, f64, f64),
+        duration: std::time::Duration,
+    ) -> Result<(), String> {
+        let now_s = self.now_ns as f64 * 1e-9;
+        let Some(r) = self.robots.get_mut(i) else {
+            return Err(format!("cannot shove robot index {i}: no such robot"));
+        };
+        if !(dx.is_finite() && dy.is_finite() && dtheta.is_finite()) {
+            return Err(format!("cannot shove robot {}: not finite", r.id));
+        }
+        if !SHOVE_DURATION.contains(&duration) {
+            return Err(format!(
+                "cannot shove robot {} over {duration:?}: a shove lasts 20 to 100 ms",
+                r.id
+            ));
+        }
+        r.shove = Some(Shove {
+            start_s: now_s,
+            duration_s: duration.as_secs_f64(),
+            by: [dx, dy, dtheta],
+        });
+        Ok(())
+    }
+
+    /// Whether robot `i` moved by (`dx`, `dy`, `dtheta`) from where it stands now, along a
+    /// straight line, keeps clear of every other robot, box and wall: a kick drawn at random
+    /// must be one a hand could give, not a robot put inside another.
+    pub fn kick_is_clear(&self, i: usize, (dx, dy, dtheta): (f64, f64, f64)) -> bool {
+        let Some(r) = self.robots.get(i) else {
+            return false;
+        };
+        let body = &self.bodies[r.body];
+        let start = *body.position();
+        let steps = 8;
+        (1..=steps).all(|k| {
+            let f = f64::from(k) / f64::from(steps);
+            let pose = Isometry::new(
+                vector![
+                    start.translation.x + (dx * f) as f32,
+                    start.translation.y + (dy * f) as f32
+                ],
+                start.rotation.angle() + (dtheta * f) as f32,
+            );
+            body.colliders().iter().all(|&mine| {
+                let shape = self.colliders[mine].shape();
+                let local = self.colliders[mine]
+                    .position_wrt_parent()
+                    .copied()
+                    .unwrap_or_else(Isometry::identity);
+                let at = pose * local;
+                self.colliders
+                    .iter()
+                    .filter(|(_, c)| c.parent() != Some(r.body))
+                    .all(|(_, c)| {
+                        rapier2d::parry::query::distance(&at, shape, c.position(), c.shape())
+                            .is_ok_and(|d| f64::from(d) > KICK_CLEARANCE_M)
+                    })
+            })
+        })
+    }
+}

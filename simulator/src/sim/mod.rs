@@ -33,7 +33,7 @@ use contacts::Owner;
 
 pub use build::SimConfig;
 pub use contacts::{Contact, ContactKind};
-pub use faults::BodyFault;
+pub use faults::{BodyFault, SHOVE_DURATION};
 pub use host::{HostSilence, SILENCE_NS, WHEEL_STOPPED_MPS};
 pub use robot::SimRobot;
 

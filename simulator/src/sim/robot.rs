@@ -38,6 +38,8 @@ pub struct SimRobot {
     /// Frames the robot's IR LEDs sent this step and where each arrived, traced while it was
     /// served and delivered once every robot has been.
     pub(super) lit: Vec<(IrFrame, Option<ir::Arrivals>)>,
+    /// A hand moving the body, while it does.
+    pub(super) shove: Option<super::faults::Shove>,
 }
 
 impl SimRobot {

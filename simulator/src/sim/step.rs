@@ -67,6 +67,12 @@ impl Simulation {
         } else {
             self.robots.iter_mut().map(drive).collect()
         };
+        let end_s = (t0 + self.physics_dt_ns()) as f64 * 1e-9;
+        for r in &mut self.robots {
+            if r.shove.is_some_and(|h| h.over(end_s)) {
+                r.shove = None;
+            }
+        }
         for (r, d) in self.robots.iter().zip(&drives) {
             let (v, w) = d.set;
             let body = &mut self.bodies[r.body];

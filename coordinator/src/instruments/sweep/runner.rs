@@ -276,6 +276,9 @@ fn unfinished(spec: &RunSpec) -> RunResult {
         worst_model_error_mm: None,
         lost_episodes: None,
         lost_s: None,
+        kicks_landed: Vec::new(),
+        contacts_at_kick: None,
+        contacts_other: None,
     }
 }
 
@@ -309,6 +312,18 @@ fn read_report(path: &Path, result: &mut RunResult) -> Result<()> {
     result.worst_model_error_mm = v["worst_model_error_mm"].as_f64();
     result.lost_episodes = v["lost_episodes"].as_u64();
     result.lost_s = v["lost_s"].as_f64();
+    result.kicks_landed = v["kicks"]
+        .as_array()
+        .map(|ks| {
+            ks.iter()
+                .filter_map(|k| k["text"].as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default();
+    if !result.kicks_landed.is_empty() {
+        result.contacts_at_kick = v["contacts_at_kick"].as_u64();
+        result.contacts_other = v["contacts_other"].as_u64();
+    }
     Ok(())
 }
 

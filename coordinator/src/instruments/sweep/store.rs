@@ -77,6 +77,15 @@ pub struct RunResult {
     /// Time lost summed over the robots, seconds.
     #[serde(default)]
     pub lost_s: Option<f64>,
+    /// The kicks as they landed, one line each (random ones as drawn).
+    #[serde(default)]
+    pub kicks_landed: Vec<String>,
+    /// Contacts that began while a kick landed (the kick's own).
+    #[serde(default)]
+    pub contacts_at_kick: Option<u64>,
+    /// Contacts that began at any other time (the supervision's).
+    #[serde(default)]
+    pub contacts_other: Option<u64>,
 }
 
 impl RunResult {
@@ -88,6 +97,11 @@ impl RunResult {
     /// Whether the behaviour called the run a success but the ground truth failed it.
     pub fn overruled(&self) -> bool {
         self.outcome == Outcome::Failure && self.behaviour_success == Some(true)
+    }
+
+    /// Whether the run ended with a robot lost and not found.
+    pub fn lost_not_found(&self) -> bool {
+        self.summary.contains("lost and not found")
     }
 
     /// Robot–robot and wall contacts together (0 when the report had none to give).

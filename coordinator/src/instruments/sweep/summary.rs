@@ -123,6 +123,14 @@ pub struct TruthStats {
     pub lost_episodes: u64,
     /// Time lost over all runs, seconds.
     pub lost_s: f64,
+    /// Runs in which a kick landed.
+    pub kicked: usize,
+    /// Kicked runs with a contact that began while the kick landed.
+    pub runs_with_contacts_at_kick: usize,
+    /// Kicked runs with a contact at any other time: contacts the supervision let happen.
+    pub runs_with_contacts_other: usize,
+    /// Runs that ended with a robot lost and not found.
+    pub lost_not_found: usize,
 }
 
 impl TruthStats {
@@ -143,6 +151,16 @@ impl TruthStats {
             median_model_error_mm: median(&errors),
             lost_episodes: runs.iter().filter_map(|r| r.lost_episodes).sum(),
             lost_s: runs.iter().filter_map(|r| r.lost_s).sum(),
+            kicked: runs.iter().filter(|r| !r.kicks_landed.is_empty()).count(),
+            runs_with_contacts_at_kick: runs
+                .iter()
+                .filter(|r| r.contacts_at_kick.unwrap_or(0) > 0)
+                .count(),
+            runs_with_contacts_other: runs
+                .iter()
+                .filter(|r| r.contacts_other.unwrap_or(0) > 0)
+                .count(),
+            lost_not_found: runs.iter().filter(|r| r.lost_not_found()).count(),
         }
     }
 }
@@ -205,6 +223,8 @@ pub struct Summary {
     pub combinations: Vec<Combination>,
     /// Failure groups, most frequent first.
     pub failures: Vec<FailureGroup>,
+    /// Each kicked run that failed, in run order: its id, its kicks as they landed, and why.
+    pub kicked_failures: Vec<(String, Vec<String>, String)>,
     /// Runs in the sweep definition.
     pub planned: usize,
 }
@@ -279,7 +299,13 @@ pub fn summarise(definition: &Definition, results: &[RunResult]) -> Summary {
     }
     // Stable: ties keep the order of their first run.
     failures.sort_by_key(|g| std::cmp::Reverse(g.count));
+    let kicked_failures = results
+        .iter()
+        .filter(|r| !r.success() && !r.kicks_landed.is_empty())
+        .map(|r| (r.id.clone(), r.kicks_landed.clone(), r.summary.clone()))
+        .collect();
     Summary {
+        kicked_failures,
         behaviour: definition.behaviour.clone(),
         keys,
         metrics,
@@ -351,6 +377,10 @@ impl Summary {
                 "median_model_error_mm",
                 "lost_episodes",
                 "lost_s",
+                "kicked",
+                "runs_with_contacts_at_kick",
+                "runs_with_contacts_other",
+                "lost_not_found",
             ]
             .map(String::from),
         );
@@ -382,6 +412,10 @@ impl Summary {
             row.push(t.median_model_error_mm.map(f6).unwrap_or_default());
             row.push(t.lost_episodes.to_string());
             row.push(f6(t.lost_s));
+            row.push(t.kicked.to_string());
+            row.push(t.runs_with_contacts_at_kick.to_string());
+            row.push(t.runs_with_contacts_other.to_string());
+            row.push(t.lost_not_found.to_string());
             for m in &self.metrics {
                 match c.metrics.get(m) {
                     Some(s) => {
@@ -447,6 +481,9 @@ impl Summary {
                 t.lost_s
             );
         }
+        if self.combinations.iter().any(|c| c.truth.kicked > 0) {
+            self.disturbances_markdown(&mut s);
+        }
         for m in &self.metrics {
             let _ = writeln!(s, "\n## {m}\n");
             let _ = writeln!(s, "| combination | n | mean | median | p95 |");
@@ -482,6 +519,42 @@ impl Summary {
             }
         }
         s
+    }
+}
+
+impl Summary {
+    /// The kicked runs' table, and each failed kicked run with the kick it got.
+    fn disturbances_markdown(&self, s: &mut String) {
+        let _ = writeln!(s, "\n## Disturbances\n");
+        let _ = writeln!(
+            s,
+            "| combination | kicked runs | runs with a contact at the kick | runs with a contact after it | lost and not found | lost [s] |"
+        );
+        let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
+        for c in &self.combinations {
+            let t = &c.truth;
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {:.2} |",
+                c.key,
+                t.kicked,
+                t.runs_with_contacts_at_kick,
+                t.runs_with_contacts_other,
+                t.lost_not_found,
+                t.lost_s
+            );
+        }
+        if !self.kicked_failures.is_empty() {
+            let _ = writeln!(s, "\nKicked runs that failed:\n");
+            for (id, kicks, why) in &self.kicked_failures {
+                let _ = writeln!(
+                    s,
+                    "- {id}: {}: {}",
+                    kicks.join("; "),
+                    why.replace('|', "\\|")
+                );
+            }
+        }
     }
 }
 
@@ -567,6 +640,7 @@ mod tests {
                 median_model_error_mm: Some(12.0),
                 lost_episodes: 3,
                 lost_s: 4.5,
+                ..TruthStats::default()
             }
         );
     }
