@@ -153,6 +153,9 @@ pub fn event_from_robot(kind: &RobotEventKind) -> Event {
         RobotEventKind::Line(false) => Event::LineFound,
         RobotEventKind::WatchdogStop => Event::WatchdogStop,
         RobotEventKind::Overrun(n) => Event::Overrun(*n),
+        RobotEventKind::Bump(b) => Event::Bumped {
+            moved_m: f64::from(b.moved_mm) * 1e-3,
+        },
         RobotEventKind::Refused(n) => Event::Refused {
             packet_type: n.packet_type,
             reason: NackReason::try_from(n.reason).ok(),

@@ -2,6 +2,7 @@
 #![cfg_attr(not(test), no_std)]
 #![warn(missing_docs)]
 
+pub mod bump;
 pub mod firmware;
 pub mod hal;
 pub mod line_follow;

@@ -6,8 +6,11 @@
 //! 2. face across the tape and creep to one side, then back through to the other, as far as the
 //!    model's uncertainty reaches (the model fixes the position across the first tape the
 //!    sensor sees, see [`crate::model::Transition::Fixed`]);
-//! 3. stop there, drive the centre onto the tape, face along it and creep forward until the model
-//!    tracks the robot again on that tape.
+//! 3. stop there, drive the centre onto the tape and face along it;
+//! 4. follow the tape with the firmware's line follower for a few centimetres: the follower
+//!    steers the robot along the tape whatever its heading was off by (a bump turns a robot by
+//!    up to 20°, and a creep on the model's heading then leaves the tape), and the model, which
+//!    matches a follower's readings to the tape, tracks the robot again on it.
 //!
 //! If the sweep finds no tape, the robot stays stopped and lost: it is safer where it stands than
 //! driving on a guess.
@@ -32,8 +35,10 @@ const TURN_MPS: f32 = 0.03;
 const BRAKE_LIMIT: Duration = Duration::from_millis(600);
 /// Below this wheel speed a robot counts as stopped.
 const STOPPED_MPS: f32 = 0.005;
-/// The creep along the tape once the robot faces along it.
+/// The follow along the tape once the robot faces along it, and the longest it may take (a
+/// follower that lost the tape stands still).
 const CREEP_M: f32 = 0.03;
+const FOLLOW_LIMIT: Duration = Duration::from_secs(4);
 /// A move the safety check holds is tried again this much later, at most this many times.
 const RETRY_AFTER: Duration = Duration::from_millis(500);
 const MAX_RETRIES: u32 = 20;
@@ -45,6 +50,8 @@ pub enum Action {
     Stop,
     /// Queue these moves (checked by the safety check; held ones are reported back).
     Moves(Vec<MoveCommand>),
+    /// Follow the tape under the sensor with the firmware's line follower at this speed, m/s.
+    Follow(f32),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -55,6 +62,10 @@ enum Step {
     Sweeping,
     /// Driving onto the tape and facing along it.
     Aligning,
+    /// Following the tape from where the odometry was, since when.
+    Following { from: Pose, since: Instant },
+    /// Followed it: the robot stands on the tape, facing along it.
+    Followed,
     /// The routine gave up: the robot stays stopped.
     GaveUp,
 }
@@ -138,7 +149,7 @@ impl Relocaliser {
 
     /// Whether the robot is back on the tape, facing along it, with the routine's moves done.
     pub fn aligned(&self) -> bool {
-        self.step == Step::Aligning && self.outstanding == 0 && self.pending.is_empty()
+        self.step == Step::Followed
     }
 
     /// The model fixed the robot's position across a tape: stop the sweep there.
@@ -190,6 +201,26 @@ impl Relocaliser {
             let moves = std::mem::take(&mut self.pending);
             self.outstanding += moves.len();
             return Some(Action::Moves(moves));
+        }
+        match self.step {
+            Step::Aligning if self.outstanding == 0 && self.pending.is_empty() => {
+                self.step = Step::Following {
+                    from: view.odometry,
+                    since: now,
+                };
+                return Some(Action::Follow(SEARCH_MPS));
+            }
+            Step::Following { from, since } => {
+                let driven = (view.odometry.x - from.x).hypot(view.odometry.y - from.y);
+                if driven < f64::from(CREEP_M)
+                    && now.saturating_duration_since(since) < FOLLOW_LIMIT
+                {
+                    return None;
+                }
+                self.step = Step::Followed;
+                return Some(Action::Stop);
+            }
+            _ => {}
         }
         let Step::Braking { since, then } = self.step else {
             return None;
@@ -251,7 +282,6 @@ impl Relocaliser {
             moves.push(straight(onto));
         }
         moves.push(turn_to(pose.theta, along.y.atan2(along.x)));
-        moves.push(straight(CREEP_M));
         moves
     }
 }
@@ -356,6 +386,16 @@ mod tests {
         for _ in &align {
             r.move_finished(true);
         }
+        // Then it follows the tape for a few centimetres, and stops.
+        assert_eq!(
+            r.poll(&fixed, &world.track, now),
+            Some(Action::Follow(SEARCH_MPS))
+        );
+        assert!(!r.aligned());
+        assert_eq!(r.poll(&fixed, &world.track, now), None);
+        let mut on = fixed.clone();
+        on.odometry.x += 0.031;
+        assert_eq!(r.poll(&on, &world.track, now), Some(Action::Stop));
         assert!(r.aligned() && !r.gave_up());
     }
 

@@ -2,10 +2,13 @@
 //! or out of the arena is held back. Robots are their oriented 48 × 32 mm footprints grown by a
 //! tunable margin; a move is swept from where the robot's queued moves will leave it, in steps of
 //! at most 5 mm and 5°, against every other robot where it stands and where its own queued moves
-//! will leave it. Each footprint also grows by twice its robot's position uncertainty (1σ), so a
-//! robot the world model is unsure of gets a wider berth.
+//! will leave it. Each footprint also grows by its robot's position uncertainty, so a robot the
+//! world model is unsure of gets a wider berth: by 1σ for a robot the model tracks, and for a
+//! lost or just-bumped one by its whole uncertainty region ([`LOST_SIGMAS`] σ, and what a turn of
+//! as many σ of its heading sweeps), an exclusion zone the others keep clear of (see
+//! [`Safety::reach`]).
 
-use behaviour_api::{Intent, MoveCommand, Pose, RobotView, WorldSnapshot};
+use behaviour_api::{Intent, Localisation, MoveCommand, Pose, RobotView, WorldSnapshot};
 
 /// Tunables of the check.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,6 +37,10 @@ impl Default for Safety {
 
 /// Each footprint grows by this many standard deviations of its robot's position uncertainty.
 pub const UNCERTAINTY_SIGMAS: f64 = 1.0;
+
+/// A lost robot's footprint grows by this many standard deviations of its position and of its
+/// heading: the region it may be anywhere in, not a 1σ ring.
+pub const LOST_SIGMAS: f64 = 3.0;
 
 /// Robots already within each other's widened footprints may close in by at most this along a
 /// path (two pushers backing off side by side are not quite parallel).
@@ -91,6 +98,27 @@ impl Broad {
 }
 
 impl Safety {
+    /// How far robot `v`'s footprint is grown beyond its plain size: the margin, and its
+    /// uncertainty. For a tracked robot, [`UNCERTAINTY_SIGMAS`] σ of its position. For a lost
+    /// one (or one more uncertain than the model's lost limit, where no tape could find it),
+    /// its exclusion zone: [`LOST_SIGMAS`] σ of its position, and the farthest any point of
+    /// its footprint moves under a turn of [`LOST_SIGMAS`] σ of its heading (at most what puts
+    /// the footprint's circumscribed circle inside the grown rectangle, which covers any
+    /// heading). A footprint displaced by less than the growth, or turned by less than that
+    /// turn, stays inside the grown one.
+    pub fn reach(&self, v: &RobotView) -> f64 {
+        let lost = v.localisation == Localisation::Lost
+            || v.uncertainty.position_m > crate::model::LOST_SIGMA_M;
+        if !lost {
+            return self.margin_m + UNCERTAINTY_SIGMAS * v.uncertainty.position_m;
+        }
+        let half_diag = (self.length_m / 2.0).hypot(self.width_m / 2.0);
+        let any_heading = half_diag - self.width_m.min(self.length_m) / 2.0;
+        let turn = (LOST_SIGMAS * v.uncertainty.heading_rad).min(std::f64::consts::PI);
+        let turned = (2.0 * half_diag * (turn / 2.0).sin()).min(any_heading);
+        self.margin_m + LOST_SIGMAS * v.uncertainty.position_m + turned
+    }
+
     /// `Ok` when the intent is safe in `world`, else why not. `from` is where the robot's queued
     /// moves will leave it (its pose when it has none); `others_planned` where other robots'
     /// queued moves will leave them.
@@ -109,15 +137,14 @@ impl Safety {
             return Ok(());
         };
         // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty.
-        let my_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
+        let my_margin = self.reach(me);
         self.within_arena(me, &path, my_margin, world.arena)?;
         let broad = Broad::new(self, &path, my_margin);
-        let widest = world
+        let widest_margin = world
             .robots
             .iter()
-            .map(|o| o.uncertainty.position_m)
-            .fold(0.0, f64::max);
-        let widest_margin = self.margin_m + UNCERTAINTY_SIGMAS * widest;
+            .map(|o| self.reach(o))
+            .fold(self.margin_m, f64::max);
         let mut near_planned: Vec<(u16, Pose)> = others_planned
             .iter()
             .filter(|(_, p)| broad.near(*p, widest_margin))
@@ -125,7 +152,7 @@ impl Safety {
             .collect();
         near_planned.sort_by_key(|(id, _)| *id);
         for other in world.robots.iter().filter(|o| o.id != me.id) {
-            let their_margin = self.margin_m + UNCERTAINTY_SIGMAS * other.uncertainty.position_m;
+            let their_margin = self.reach(other);
             let planned_near = near_planned
                 .binary_search_by_key(&other.id, |(id, _)| *id)
                 .is_ok();
@@ -219,8 +246,7 @@ impl Safety {
         }) else {
             return Ok(());
         };
-        let widened =
-            UNCERTAINTY_SIGMAS * (me.uncertainty.position_m + other.uncertainty.position_m);
+        let widened = my_margin + their_margin - 2.0 * self.margin_m;
         Err(if widened >= 0.0005 {
             format!(
                 "robot {} would touch robot {} at ({:.3}, {:.3}) (their footprints widened by \
@@ -229,8 +255,8 @@ impl Safety {
                 other.id,
                 p.x,
                 p.y,
-                UNCERTAINTY_SIGMAS * me.uncertainty.position_m * 1e3,
-                UNCERTAINTY_SIGMAS * other.uncertainty.position_m * 1e3
+                (my_margin - self.margin_m) * 1e3,
+                (their_margin - self.margin_m) * 1e3
             )
         } else {
             format!(
@@ -504,5 +530,128 @@ mod tests {
             (e.x - 0.1).abs() < 1e-6 && (e.y + 0.1).abs() < 1e-6,
             "{e:?}"
         );
+    }
+
+    mod exclusion {
+        use super::*;
+        use proptest::prelude::*;
+        use std::f64::consts::PI;
+
+        /// A view at a pose with an uncertainty, tracked or lost.
+        fn robot(id: u16, pose: Pose, sigma: (f64, f64), lost: bool) -> RobotView {
+            RobotView {
+                id,
+                connected: true,
+                pose,
+                uncertainty: behaviour_api::PoseUncertainty {
+                    position_m: sigma.0,
+                    heading_rad: sigma.1,
+                },
+                localisation: if lost {
+                    Localisation::Lost
+                } else {
+                    Localisation::Tracking
+                },
+                ..Default::default()
+            }
+        }
+
+        /// Where a robot may really be: within its position's reach (σ for a tracked robot,
+        /// `LOST_SIGMAS` σ for a lost one) in direction `u`, turned by `t` of its heading's
+        /// (none for a tracked one, `LOST_SIGMAS` σ for a lost one).
+        fn possible(v: &RobotView, at: Pose, u: (f64, f64), t: f64) -> Pose {
+            let lost = v.localisation == Localisation::Lost;
+            let k = if lost {
+                LOST_SIGMAS
+            } else {
+                UNCERTAINTY_SIGMAS
+            };
+            let r = k * v.uncertainty.position_m * u.0;
+            let turn = if lost {
+                t * (LOST_SIGMAS * v.uncertainty.heading_rad).min(PI)
+            } else {
+                0.0
+            };
+            Pose {
+                x: at.x + r * u.1.cos(),
+                y: at.y + r * u.1.sin(),
+                theta: at.theta + turn,
+            }
+        }
+
+        fn intent(kind: u8, amount: f64) -> Intent {
+            let command = match kind {
+                0 => MoveCommand::Straight {
+                    distance_m: amount as f32,
+                    speed_mps: 0.1,
+                },
+                1 => MoveCommand::Rotate {
+                    angle_deg: (amount * 1200.0) as f32,
+                    speed_mps: 0.05,
+                },
+                _ => MoveCommand::Arc {
+                    radius_m: 0.1,
+                    angle_deg: (amount * 600.0) as f32,
+                    speed_mps: 0.1,
+                },
+            };
+            Intent::Move {
+                robot: 1,
+                command,
+                tag: 0,
+            }
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(4000))]
+
+            /// The rule the supervisor keeps: a move the check approves, from robots clear of
+            /// each other's grown footprints, sweeps footprints (at the check's own steps) that
+            /// touch none of the other robot's possible poses, wherever each robot really is
+            /// within its region: a tracked one within 1σ, a lost one within 3σ and turned by
+            /// up to 3σ of its heading.
+            #[test]
+            fn an_approved_move_never_reaches_where_the_other_robot_may_be(
+                a in (0.3..0.7f64, 0.3..0.7f64, -PI..PI),
+                b in (0.03..0.16f64, -PI..PI, -PI..PI),
+                sigmas in (0.0..0.02f64, 0.0..0.5f64, 0.0..0.02f64, 0.0..0.5f64),
+                lost in (any::<bool>(), any::<bool>()),
+                kind in 0..3u8,
+                amount in -0.15..0.15f64,
+                where_a in (0.0..=1.0f64, -PI..PI, -1.0..=1.0f64),
+                where_b in (0.0..=1.0f64, -PI..PI, -1.0..=1.0f64),
+            ) {
+                let s = Safety::default();
+                let pa = Pose { x: a.0, y: a.1, theta: a.2 };
+                let pb = Pose { x: a.0 + b.0 * b.1.cos(), y: a.1 + b.0 * b.1.sin(), theta: b.2 };
+                let me = robot(1, pa, (sigmas.0, sigmas.1), lost.0);
+                let other = robot(2, pb, (sigmas.2, sigmas.3), lost.1);
+                let grown = |v: &RobotView| Footprint::new(v.pose, s.length_m, s.width_m, s.reach(v));
+                if grown(&me).overlaps(&grown(&other)) {
+                    // Already inside each other's regions: the check then only lets them part.
+                    return Ok(());
+                }
+                let world = WorldSnapshot {
+                    time: Default::default(),
+                    robots: [me.clone(), other.clone()].into_iter().map(std::sync::Arc::new).collect(),
+                    encounters: Vec::new(),
+                    arena: (1.0, 1.0),
+                };
+                let intent = intent(kind, amount);
+                if s.check(&intent, &world).is_err() {
+                    return Ok(());
+                }
+                let really_b = possible(&other, pb, (where_b.0, where_b.1), where_b.2);
+                let theirs = Footprint::new(really_b, s.length_m, s.width_m, 0.0);
+                for p in s.path(&intent, pa).expect("a move moves") {
+                    let really_a = possible(&me, p, (where_a.0, where_a.1), where_a.2);
+                    let mine = Footprint::new(really_a, s.length_m, s.width_m, 0.0);
+                    prop_assert!(
+                        !mine.overlaps(&theirs),
+                        "approved {intent:?}: at {really_a:?} it touches robot 2 at {really_b:?}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -93,6 +93,12 @@ pub enum Event {
     WatchdogStop,
     /// The robot's main loop overran its period this many times.
     Overrun(u32),
+    /// The robot felt itself moved by something other than its wheels (the world model has
+    /// already widened its pose and the supervisor stopped it to re-localise it).
+    Bumped {
+        /// How far the bump moved it, as the robot estimated, metres.
+        moved_m: f64,
+    },
     /// The robot refused a command.
     Refused {
         /// The refused packet's type code.

@@ -325,6 +325,7 @@ fn event_name(kind: &RobotEventKind) -> &'static str {
         RobotEventKind::Line(_) => "line",
         RobotEventKind::WatchdogStop => "watchdog_stop",
         RobotEventKind::Overrun(_) => "overrun",
+        RobotEventKind::Bump(_) => "bump",
         RobotEventKind::Refused(_) => "refused",
         #[allow(unreachable_patterns)]
         _ => "other",

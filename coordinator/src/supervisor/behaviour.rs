@@ -132,6 +132,22 @@ impl Handler<RobotEvent> for Supervisor {
                 self.note_link(e.robot_id, "lost");
                 warn!(robot = e.robot_id, "link lost; the robot actor reconnects");
             }
+            RobotEventKind::Bump(b) => {
+                // Its pose is widened and it is stopped at once, whatever the behaviour makes
+                // of the news; it is held until the tape localises it again.
+                let moved_m = f64::from(b.moved_mm) * 1e-3;
+                warn!(
+                    robot = e.robot_id,
+                    moved_m,
+                    peak_mg = { b.peak_mg },
+                    "robot bumped"
+                );
+                if self.started && self.done.is_some() {
+                    if let Some(why) = self.model.bumped(e.robot_id, moved_m, b.at_ms, e.at) {
+                        self.on_lost(e.robot_id, why, ctx);
+                    }
+                }
+            }
             RobotEventKind::Connected(_) => {
                 self.note_link(e.robot_id, "connected");
                 if self

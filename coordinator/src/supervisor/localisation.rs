@@ -19,14 +19,14 @@ impl Supervisor {
         // circumscribed circle, the margin and its uncertainty (with room for it to grow a
         // little on the way) inside the arena.
         let clear = (self.safety.length_m / 2.0).hypot(self.safety.width_m / 2.0)
-            + self.safety.margin_m
-            + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
+            + self.safety.reach(&view)
+            + safety::LOST_SIGMAS * SWEEP_SIGMA_GROWTH_M;
         let (w, h) = self.arena;
         let room = ([clear, clear], [w - clear, h - clear]);
         let (routine, first) = Relocaliser::start(&view, self.model.track(), room, Instant::now());
         self.relocalising.insert(id, routine);
         self.act(id, first, &world);
-        let reach = LOST_REACH_M + safety::UNCERTAINTY_SIGMAS * view.uncertainty.position_m;
+        let reach = LOST_REACH_M + self.safety.reach(&view);
         let near: Vec<u16> = world
             .robots
             .iter()
@@ -73,6 +73,12 @@ impl Supervisor {
                 self.planned.remove(&id);
                 if let Some(r) = self.robot(id) {
                     r.addr().do_send(Command::Stop);
+                }
+            }
+            Action::Follow(speed) => {
+                tracing::debug!(robot = id, speed, "re-localisation follows the tape");
+                if let Some(r) = self.robot(id) {
+                    r.addr().do_send(Command::FollowLine(Some(speed)));
                 }
             }
             Action::Moves(moves) => {
@@ -130,14 +136,36 @@ impl Supervisor {
                 self.tell(id, LocalisationEvent::Found, ctx);
                 return;
             }
-            warn!(
-                robot = id,
-                "back on the tape, but it does not match: it stays stopped"
-            );
+            warn!(robot = id, "back on the tape, but it does not match");
             routine.give_up();
+        }
+        if routine.gave_up() {
+            self.search_again(id, ctx);
+            return;
         }
         if let Some(action) = action {
             self.act(id, action, &world);
         }
+    }
+
+    /// The routine of lost robot `id` found no tape that matches: it starts again from where the
+    /// robot stands, with the model's widened pose, at most [`SEARCHES`] times in all; then the
+    /// run ends, the robot stopped where it is, rather than hang or drive on a guess.
+    fn search_again(&mut self, id: u16, ctx: &mut Context<Self>) {
+        self.relocalising.remove(&id);
+        let searches = self.searches.entry(id).or_insert(0);
+        *searches += 1;
+        if *searches >= SEARCHES {
+            warn!(robot = id, "robot lost and not found: ending the run");
+            let verdict = self.unfinished(format!("robot {id} lost and not found"));
+            self.finish(verdict, ctx);
+            return;
+        }
+        warn!(
+            robot = id,
+            searches = *searches,
+            "robot not found: searching again"
+        );
+        self.on_lost(id, "its search found no tape that matches".into(), ctx);
     }
 }

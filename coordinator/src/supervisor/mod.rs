@@ -106,6 +106,8 @@ pub struct Supervisor {
     next_move: u32,
     /// Lost robots being re-localised; every intent for them is held meanwhile.
     relocalising: std::collections::HashMap<u16, Relocaliser>,
+    /// Searches each robot's re-localisation has run that found nothing.
+    searches: std::collections::HashMap<u16, u32>,
     /// Robots whose link came back but whose first state report has not: the behaviour hears
     /// of the link only with it, as until then the robot's intents are held as lost.
     reconnected: std::collections::HashMap<u16, RobotEvent>,
@@ -117,6 +119,8 @@ const RELOCALISATION_TAG: u32 = u32::MAX;
 /// A robot that is moving within this distance (centre to centre) of a lost robot, plus twice
 /// the lost robot's uncertainty, is stopped too: the lost one may be anywhere in that reach.
 const LOST_REACH_M: f64 = 0.06;
+/// A lost robot is searched for this many times before the run ends with it lost and not found.
+const SEARCHES: u32 = 3;
 /// How much a lost robot's uncertainty may grow over its sweep (12–16 cm of driving).
 const SWEEP_SIGMA_GROWTH_M: f64 = 0.003;
 
@@ -197,6 +201,7 @@ impl Supervisor {
             move_tags: Default::default(),
             next_move: 0,
             relocalising: Default::default(),
+            searches: Default::default(),
             reconnected: Default::default(),
         }
     }

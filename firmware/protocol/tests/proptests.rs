@@ -89,6 +89,7 @@ fn arb_packet(t: PacketType) -> BoxedStrategy<AnyPacket> {
         T::WatchdogStop => pod_packet::<WatchdogStop>(),
         T::LoopOverrun => pod_packet::<LoopOverrun>(),
         T::SettingsSaved => pod_packet::<SettingsSaved>(),
+        T::Bump => pod_packet::<Bump>(),
         T::StraightMovement => pod_packet::<StraightMovement>(),
         T::RotationMovement => pod_packet::<RotationMovement>(),
         T::ArcMovement => pod_packet::<ArcMovement>(),

@@ -50,7 +50,8 @@ impl<B: Board> Firmware<B> {
             | AnyPacket::LineEvent(_)
             | AnyPacket::WatchdogStop(_)
             | AnyPacket::LoopOverrun(_)
-            | AnyPacket::SettingsSaved(_) => {}
+            | AnyPacket::SettingsSaved(_)
+            | AnyPacket::Bump(_) => {}
         }
     }
 

@@ -42,7 +42,33 @@ impl<B: Board> Firmware<B> {
         let duty = self.guard_direction(now, wheels, targets, pwm, timeout);
         self.apply_pwm(duty[0], duty[1]);
         self.sample_sensors(now, wheels, targets);
+        self.detect_bump(now, wheels, dt, tick);
         self.reflect_state(now);
+    }
+
+    /// Reports a bump once the detector has seen one (see [`crate::bump`]).
+    fn detect_bump(&mut self, now: Instant, wheels: WheelInputs, dt: f32, tick: f32) {
+        let sample = crate::bump::Sample {
+            now,
+            dt,
+            accel_mg: [self.state.accel.x_mg, self.state.accel.y_mg],
+            wheels_mps: (wheels.left_mps, wheels.right_mps),
+            gauge_m: self.settings.geometry.wheel_gauge_m,
+            ticks: (wheels.left_ticks, wheels.right_ticks),
+            tick_m: tick,
+            idle: self.drive == Drive::Idle
+                && self.locomotion.is_empty()
+                && self.state.wheels.left_pwm == 0
+                && self.state.wheels.right_pwm == 0,
+        };
+        if let Some(b) = self.bump.update(&sample, &self.settings.bump) {
+            self.send(&packets::Bump {
+                at_ms: b.at.as_millis() as u32,
+                peak_mg: b.peak_mg.clamp(0.0, f32::from(u16::MAX)) as u16,
+                moved_mm: (b.moved_m * 1e3).clamp(0.0, f32::from(u16::MAX)) as u16,
+                cause: b.cause as u8,
+            });
+        }
     }
 
     /// The duties `pwm` with every duty the encoders could not count the right way taken off:

@@ -19,6 +19,7 @@ use protocol::slip::SlipDecoder;
 use protocol::state::RobotState;
 use protocol::MAX_PACKET;
 
+use crate::bump::BumpDetector;
 use crate::hal::{Board, EncoderEdge, IrFrame, Side, Wheel};
 use crate::line_follow::LineFollower;
 use crate::line_sensor::{LineReading, LineSensor};
@@ -53,6 +54,7 @@ pub struct Firmware<B: Board> {
     line: LineReading,
     follower: LineFollower,
     proximity: Proximity,
+    bump: BumpDetector,
     drive: Drive,
     reflector: Reflector,
     watchdog: Watchdog,
@@ -98,6 +100,7 @@ impl<B: Board> Firmware<B> {
             },
             follower: LineFollower::new(),
             proximity: Proximity::new(),
+            bump: BumpDetector::new(),
             drive: Drive::Idle,
             reflector: Reflector::new(),
             watchdog: Watchdog::new(),

@@ -89,6 +89,8 @@ pub enum RobotEventKind {
     WatchdogStop,
     /// The robot's main loop overran.
     Overrun(u32),
+    /// The robot felt a bump.
+    Bump(packets::Bump),
     /// A command was refused.
     Refused(packets::Nack),
 }

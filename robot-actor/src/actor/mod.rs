@@ -235,6 +235,7 @@ impl RobotActor {
             AnyPacket::LineEvent(e) => self.emit(RobotEventKind::Line(e.lost != 0)),
             AnyPacket::WatchdogStop(_) => self.emit(RobotEventKind::WatchdogStop),
             AnyPacket::LoopOverrun(o) => self.emit(RobotEventKind::Overrun(o.late_us)),
+            AnyPacket::Bump(b) => self.emit(RobotEventKind::Bump(b)),
             other => debug!(
                 packet = other.packet_type().name(),
                 "ignored host-bound packet"

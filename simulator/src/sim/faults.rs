@@ -57,7 +57,7 @@ impl Simulation {
     }
 
     /// Kicks robot `i`: moves its body by (`dx`, `dy`) metres and turns it by `dtheta` radians at
-    /// once, at rest, without telling its firmware. Its wheels never turn for it, so its encoders
+    /// once, without telling its firmware (a moving body keeps its speed, turned with it). Its wheels never turn for it, so its encoders
     /// and the odometry built on them do not see the move: only the ground truth and what the
     /// sensors see from the new place do. Returns the new true pose.
     ///
@@ -83,10 +83,15 @@ impl Simulation {
         let x = f64::from(body.translation().x) + dx;
         let y = f64::from(body.translation().y) + dy;
         let theta = f64::from(body.rotation().angle()) + dtheta;
+        // Put down as it was picked up, in no time: its velocity turns with it, and nothing on
+        // the robot (accelerometer included) feels the move.
+        let (sin, cos) = (dtheta as f32).sin_cos();
+        let v = *body.linvel();
+        let turned = vector![cos * v.x - sin * v.y, sin * v.x + cos * v.y];
         body.set_translation(vector![x as f32, y as f32], true);
         body.set_rotation(Rotation::new(theta as f32), true);
-        body.set_linvel(vector![0.0, 0.0], true);
-        body.set_angvel(0.0, true);
+        body.set_linvel(turned, true);
+        r.last_velocity = nalgebra::Vector2::new(f64::from(turned.x), f64::from(turned.y));
         // The true pose follows at once (the kick is not distance driven); its heading stays
         // unwrapped, counting the turn the kick gave.
         r.pose = Pose {

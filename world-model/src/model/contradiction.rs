@@ -27,7 +27,13 @@ impl WorldModel {
         at_rest: Option<std::time::Duration>,
     ) -> Option<String> {
         let sigma = sigmas(&e.cov);
-        if sigma.position_m > LOST_SIGMA_M {
+        // Where no tape is within reach nothing could find the robot again: it drives on as
+        // uncertain as it is (the safety check gives such a robot its whole region).
+        let findable = self
+            .track
+            .nearest(Point2::new(pose.x, pose.y))
+            .is_some_and(|n| n.distance_m < RELOCATE_M + sigma.position_m);
+        if sigma.position_m > LOST_SIGMA_M && findable {
             return Some(format!(
                 "its position is uncertain by {:.0} mm (1σ), beyond {:.0} mm",
                 sigma.position_m * 1e3,

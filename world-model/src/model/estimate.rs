@@ -65,7 +65,14 @@ pub(super) struct Estimate {
     /// Set while the robot is lost.
     pub(super) lost: Option<Lost>,
     pub(super) stats: LocalisationStats,
+    /// The estimate over the last second, by the robot's uptime in milliseconds: a bump the
+    /// robot reports after it ended takes the estimate back to where it stood before it, since
+    /// the wheels it dragged counted travel (often the wrong way) that never happened.
+    pub(super) recent: std::collections::VecDeque<(u32, Pose)>,
 }
+
+/// How much of the estimate's past is kept for a bump to go back to.
+pub(super) const RECENT_MS: u32 = 1000;
 
 impl Default for Estimate {
     fn default() -> Self {
@@ -90,6 +97,7 @@ impl Default for Estimate {
             was_following: false,
             lost: None,
             stats: LocalisationStats::default(),
+            recent: std::collections::VecDeque::new(),
         }
     }
 }

@@ -23,6 +23,7 @@ mod zones;
 
 use estimate::{
     corrected, sigma_along, sigmas, widen, Correction, Estimate, Lost, TapeAlong, TapeMatch,
+    RECENT_MS,
 };
 use zones::{junction_zones, through_nodes};
 
@@ -115,6 +116,14 @@ pub const LOST_SIGMA_M: f64 = 0.03;
 const LOST_FLOOR_M: f64 = 0.015;
 /// And its heading this uncertain: a turn on the spot that slipped by 17° was seen to cause it.
 const LOST_FLOOR_RAD: f64 = 15.0 * PI / 180.0;
+/// A bumped robot's position is this many times as uncertain (1σ) as the move it felt, at least
+/// [`LOST_FLOOR_M`]; its heading this uncertain: a hand turns it up to 20° as it shoves.
+const BUMP_MARGIN: f64 = 1.5;
+const BUMP_MAX_M: f64 = 0.9 * LOST_SIGMA_M;
+/// The estimate a bump goes back to is at least this older than the jolt's start, which the
+/// robot dates by the main loop that crossed the threshold.
+const BUMP_BEFORE_MS: u32 = 10;
+const BUMP_TURN_RAD: f64 = 20.0 * PI / 180.0;
 /// While lost, a tape seen within this of the estimate is taken as the one the robot is beside.
 pub const RELOCATE_M: f64 = 0.08;
 /// `LineState::flags` bits: no spot sees the line; line following is on.

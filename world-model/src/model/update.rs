@@ -96,6 +96,15 @@ impl WorldModel {
         }
         e.saw_tape = r.sees_tape;
         e.was_following = r.following;
+        let uptime = u.state.uptime_ms;
+        while e
+            .recent
+            .front()
+            .is_some_and(|&(t, _)| uptime.wrapping_sub(t) > RECENT_MS)
+        {
+            e.recent.pop_front();
+        }
+        e.recent.push_back((uptime, pose));
         self.publish(u, e, pose);
         transition
     }
@@ -280,19 +289,105 @@ impl WorldModel {
     }
 }
 
-/// The robot is found lost: its evidence counters restart and its covariance is widened to what
-/// the contradiction says the estimate may be off by.
-fn lose(e: &mut Estimate, u: &StateUpdated) {
+impl WorldModel {
+    /// Robot `id` felt itself moved by something other than its wheels from its uptime
+    /// `since_ms` on, by about `moved_m` (the robot's own estimate; 0 when only its wheels
+    /// turning at rest gave it away): its estimate goes back to where it stood before, widened
+    /// at once to cover the move and any turn, and it is lost until the tape fixes it again.
+    /// Where no tape is within reach it is only widened: nothing could fix it there. Returns why, for the supervisor to stop and re-localise it; `None` for a robot the
+    /// model has no estimate of yet.
+    pub fn bumped(
+        &self,
+        id: u16,
+        moved_m: f64,
+        since_ms: u32,
+        at: tokio::time::Instant,
+    ) -> Option<String> {
+        let mut e = self.estimates.get_mut(&id)?;
+        if e.last_odometry.is_none() {
+            return None;
+        }
+        let here = e.recent.back().map(|&(_, p)| p)?;
+        let tape_near = self
+            .track
+            .nearest(Point2::new(here.x, here.y))
+            .is_some_and(|n| n.distance_m < RELOCATE_M + BUMP_MAX_M);
+        if !tape_near {
+            // No tape could ever localise it here: it drives on, as uncertain as the move made
+            // it, and the others keep that much farther away.
+            let reach = (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M);
+            widen(&mut e.cov, reach, BUMP_TURN_RAD);
+            let uncertainty = sigmas(&e.cov);
+            e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
+            drop(e);
+            self.changed(id);
+            if let Some(mut entry) = self.robots.get_mut(&id) {
+                Arc::make_mut(&mut entry).uncertainty = uncertainty;
+            }
+            return None;
+        }
+        if e.lost.is_none() {
+            e.stats.lost_episodes += 1;
+        }
+        start_lost(&mut e, at);
+        // Back to where the estimate stood before the jolt began: what the odometry counted
+        // since is the dragged wheels', not travel.
+        let before = e
+            .recent
+            .iter()
+            .rev()
+            .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
+            .map(|&(_, p)| p);
+        let mut pose = None;
+        if let (Some(before), Some(odometry)) = (before, e.last_odometry) {
+            e.correction = Correction::between(odometry, before);
+            pose = Some(before);
+        }
+        // The robot's estimate of the move misses what it could not feel (a turn about its
+        // centre, the start of the jolt); the heading may be anything a hand gives.
+        // Below the lost limit: once the tape fixes it across, along the tape it stays this
+        // uncertain until a mark, and beyond the limit it would be lost again at once.
+        let reach = (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M);
+        widen(&mut e.cov, reach, BUMP_TURN_RAD);
+        let uncertainty = sigmas(&e.cov);
+        e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
+        drop(e);
+        self.changed(id);
+        if let Some(mut entry) = self.robots.get_mut(&id) {
+            let view = Arc::make_mut(&mut entry);
+            view.uncertainty = uncertainty;
+            view.localisation = Localisation::Lost;
+            if let Some(p) = pose {
+                view.pose = p;
+            }
+        }
+        Some(if moved_m > 0.0 {
+            format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3)
+        } else {
+            "its wheels turned while it stood with its motors off".to_string()
+        })
+    }
+}
+
+/// Lost from `at` on, searching afresh: the evidence counters restart.
+fn start_lost(e: &mut Estimate, at: tokio::time::Instant) {
+    let since = e.lost.as_ref().map_or(at, |l| l.since);
     e.lost = Some(Lost {
-        since: u.at,
+        since,
         fixed: false,
     });
-    e.stats.lost_episodes += 1;
     e.no_tape_m = 0.0;
     e.no_tape_at_rest = std::time::Duration::ZERO;
     e.stray_tape_m = 0.0;
     e.rest_line = None;
     e.displaced_reads = 0;
+}
+
+/// The robot is found lost: its evidence counters restart and its covariance is widened to what
+/// the contradiction says the estimate may be off by.
+fn lose(e: &mut Estimate, u: &StateUpdated) {
+    start_lost(e, u.at);
+    e.stats.lost_episodes += 1;
     // The contradiction says the estimate is off by at least what the line sensor
     // reaches either side; the safety check keeps everyone that much farther away.
     // The heading may be what is wrong (a turn that slipped): once the tape fixes

@@ -71,6 +71,16 @@ code_enum! {
 }
 
 code_enum! {
+    /// What made the robot report a bump.
+    pub enum BumpCause {
+        /// The accelerometer felt a jolt the wheel speeds do not explain.
+        Jolt = 1,
+        /// The wheels turned while the robot stood idle with its motors off.
+        WheelsWhileIdle = 2,
+    }
+}
+
+code_enum! {
     /// Colour mark on the track under the robot.
     pub enum Mark {
         /// White floor or black tape.

@@ -75,3 +75,19 @@ wire_struct! {
         pub late_us: u32,
     }
 }
+
+wire_struct! {
+    /// The robot was moved by something other than its own wheels: a jolt its wheel speeds do
+    /// not explain, or wheels turning while it stood idle.
+    pub struct Bump {
+        /// When the jolt began, the robot's uptime in milliseconds.
+        pub at_ms: u32,
+        /// The largest unexplained acceleration, milli-g.
+        pub peak_mg: u16,
+        /// How far the unexplained acceleration moved the robot, integrated twice over the
+        /// jolt, millimetres; for wheels turned while idle, the wheels' travel.
+        pub moved_mm: u16,
+        /// A [`BumpCause`](super::BumpCause) code.
+        pub cause: u8,
+    }
+}

@@ -14,14 +14,16 @@ use crate::layout::Layout;
 use crate::state::{ReducedState, RobotState};
 
 pub use codes::{
-    CalibrationAction, DriveMode, LogLevel, Mark, MoveOutcome, NackReason, ReflectorMode, Side,
+    BumpCause, CalibrationAction, DriveMode, LogLevel, Mark, MoveOutcome, NackReason,
+    ReflectorMode, Side,
 };
 pub use commands::{
     ArcMovement, ClearQueue, IrMessage, LineCalibration, LineFollow, MotorPower, ReflectorConfig,
     RotationMovement, SetLed, Stop, StraightMovement, WheelSpeeds,
 };
 pub use events::{
-    LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, RobotEncountered, WatchdogStop,
+    Bump, LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, RobotEncountered,
+    WatchdogStop,
 };
 pub use session::{Hello, HelloRequest, Log, Nack, Ping, Pong};
 pub use settings_io::{
@@ -151,6 +153,8 @@ packets! {
     0x16 => LoopOverrun(LoopOverrun);
     /// Event: settings saved, robot → host.
     0x17 => SettingsSaved(SettingsSaved);
+    /// Event: the robot felt a bump, robot → host.
+    0x18 => Bump(Bump);
     /// Straight move, host → robot (thesis code).
     0x40 => StraightMovement(StraightMovement);
     /// Rotation in place, host → robot.

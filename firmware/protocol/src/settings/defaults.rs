@@ -1,9 +1,10 @@
 //! The factory "EEPROM image": every setting's default value.
 
 use super::{
-    ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings, LineSensorSettings,
-    LocomotionSettings, LogSettings, MotorSettings, PidSettings, ProximitySettings,
-    ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings, WatchdogSettings,
+    BumpSettings, ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings,
+    LineSensorSettings, LocomotionSettings, LogSettings, MotorSettings, PidSettings,
+    ProximitySettings, ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings,
+    WatchdogSettings,
 };
 
 impl Default for IdentitySettings {
@@ -98,6 +99,11 @@ impl Default for Settings {
             },
             watchdog: WatchdogSettings { timeout_ms: 500 },
             log: LogSettings { level: 3 },
+            bump: BumpSettings {
+                threshold_mg: 250,
+                min_moved_mm: 6,
+                idle_ticks: 3,
+            },
         }
     }
 }

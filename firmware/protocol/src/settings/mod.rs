@@ -14,9 +14,10 @@ use crate::layout::Layout;
 pub use error::SettingsError;
 pub use rules::{Bound, FieldRule, Range, RULES};
 pub use structs::{
-    ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings, LineSensorSettings,
-    LocomotionSettings, LogSettings, MotorSettings, PidSettings, ProximitySettings,
-    ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings, WatchdogSettings,
+    BumpSettings, ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings,
+    LineSensorSettings, LocomotionSettings, LogSettings, MotorSettings, PidSettings,
+    ProximitySettings, ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings,
+    WatchdogSettings,
 };
 
 const _: () = assert!(core::mem::size_of::<Settings>() <= 255 - 3);
@@ -105,8 +106,8 @@ mod tests {
         );
         assert_eq!(
             Settings::field("watchdog"),
-            Some((Settings::SIZE - 3, 2)),
-            "watchdog sits before the 1-byte log settings"
+            Some((Settings::SIZE - 7, 2)),
+            "watchdog sits before the 1-byte log and the 4-byte bump settings"
         );
     }
 

@@ -147,6 +147,12 @@ pub const RULES: &[FieldRule] = &[
         num("log.level", 0.0, 4.0),
         "0 silent, 1 error, 2 warn, 3 info, 4 debug",
     ),
+    noted(
+        num("bump.threshold_mg", 0.0, U16),
+        "0 disables jolt detection",
+    ),
+    num("bump.min_moved_mm", 0.0, 255.0),
+    noted(num("bump.idle_ticks", 0.0, 255.0), "0 disables"),
 ];
 
 /// Reads the primitive `ty` at `offset` of `bytes` as a number.

@@ -169,6 +169,22 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// Bump detection: the robot reports being moved by something other than its wheels.
+    pub struct BumpSettings {
+        /// An acceleration the wheel speeds do not explain by more than this is a jolt, in
+        /// milli-g; 0 disables jolt detection.
+        pub threshold_mg: u16,
+        /// A jolt is reported only when it moved the robot at least this far, in millimetres:
+        /// a robot's own starts, stops and pushes jolt the accelerometer too (the wheel speeds
+        /// lag), but move it nowhere their wheels do not say.
+        pub min_moved_mm: u8,
+        /// Encoder pulses, summed over both wheels, that turn while the robot stands idle with
+        /// its wheels stopped before it reports a bump; 0 disables.
+        pub idle_ticks: u8,
+    }
+}
+
+wire_struct! {
     /// Every adjustable parameter of the robot, one sub-struct per module.
     pub struct Settings {
         /// Identity.
@@ -205,5 +221,7 @@ wire_struct! {
         pub watchdog: WatchdogSettings,
         /// Debug log.
         pub log: LogSettings,
+        /// Bump detection.
+        pub bump: BumpSettings,
     }
 }
