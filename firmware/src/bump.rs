@@ -38,6 +38,8 @@ pub struct Bump {
     pub peak_mg: f32,
     /// How far it moved the robot, metres.
     pub moved_m: f32,
+    /// The move along the heading and to the left, metres (robot frame at its start).
+    pub moved: [f32; 2],
     /// What gave it away.
     pub cause: BumpCause,
 }
@@ -171,6 +173,7 @@ impl BumpDetector {
             at: j.start,
             peak_mg: j.peak_mg,
             moved_m: libm::hypotf(moved[0], moved[1]),
+            moved,
             cause: BumpCause::Jolt,
         })
     }
@@ -198,6 +201,7 @@ impl BumpDetector {
             at: s.now,
             peak_mg: 0.0,
             moved_m: pulses as f32 * s.tick_m / 2.0,
+            moved: [0.0; 2],
             cause: BumpCause::WheelsWhileIdle,
         })
     }

@@ -462,3 +462,84 @@ fn a_kick_of_no_robot_or_by_no_number_is_refused() {
     assert!(e.contains("not finite"), "{e}");
     assert_eq!(sim.robots()[0].pose().x, 0.5);
 }
+
+/// The bumps robot 0 reports over `d`.
+fn bumps(sim: &mut simulator::Simulation, d: Duration) -> Vec<Bump> {
+    let mut seen = Vec::new();
+    run(sim, d, |i, p| {
+        if let (0, AnyPacket::Bump(b)) = (i, p) {
+            seen.push(b);
+        }
+        false
+    });
+    seen
+}
+
+/// A shove is a hand moving the body: it lands where it was pushed, the accelerometer feels
+/// it, and the firmware reports a bump of about its size; driving does not.
+#[test]
+fn a_shove_moves_the_body_and_the_robot_feels_how_far() {
+    let mut sim = connected(world(OPEN), 1);
+    send(
+        &mut sim,
+        0,
+        StraightMovement {
+            distance_m: 0.1,
+            speed_mps: 0.2,
+            move_id: 1,
+        },
+    );
+    assert_eq!(
+        bumps(&mut sim, Duration::from_secs(2)),
+        vec![],
+        "its own start and stop are no bump"
+    );
+    let before = sim.robots()[0].pose();
+    // 20 mm to its left (the robot faces +x) and 10° over 50 ms.
+    sim.shove(
+        0,
+        (0.0, 0.02, 10f64.to_radians()),
+        Duration::from_millis(50),
+    )
+    .unwrap();
+    let felt = bumps(&mut sim, Duration::from_millis(500));
+    let after = sim.robots()[0].pose();
+    assert!(
+        (after.y - before.y - 0.02).abs() < 1e-3 && (after.x - before.x).abs() < 1e-3,
+        "{before:?} → {after:?}"
+    );
+    assert!((after.theta - before.theta - 10f64.to_radians()).abs() < 0.01);
+    let jolt = felt
+        .iter()
+        .find(|b| b.cause == BumpCause::Jolt as u8)
+        .unwrap_or_else(|| panic!("no jolt reported: {felt:?}"));
+    assert!(
+        (15..=30).contains(&{ jolt.moved_mm }),
+        "a 20 mm shove felt as {} mm",
+        { jolt.moved_mm }
+    );
+    assert!({ jolt.peak_mg } > 1000, "{jolt:?}");
+    // Teleported, nothing on the robot feels it.
+    sim.displace(0, 0.0, -0.02, 0.0).unwrap();
+    assert_eq!(bumps(&mut sim, Duration::from_millis(500)), vec![]);
+}
+
+/// A turn about its centre moves no accelerometer there, but a robot standing with its motors
+/// off feels its wheels dragged round.
+#[test]
+fn a_standing_robot_turned_by_hand_feels_its_wheels_turn() {
+    let mut sim = connected(world(OPEN), 1);
+    run(&mut sim, Duration::from_millis(500), |_, _| false);
+    sim.shove(0, (0.0, 0.0, 15f64.to_radians()), Duration::from_millis(50))
+        .unwrap();
+    let felt = bumps(&mut sim, Duration::from_millis(500));
+    assert!(
+        felt.iter()
+            .any(|b| b.cause == BumpCause::WheelsWhileIdle as u8),
+        "{felt:?}"
+    );
+    let e = sim
+        .shove(0, (0.0, 0.0, 0.1), Duration::from_millis(5))
+        .unwrap_err();
+    assert!(e.contains("20 to 100 ms"), "{e}");
+}

@@ -15,4 +15,4 @@ pub mod model;
 pub mod relocalise;
 pub mod safety;
 
-pub use model::{LocalisationStats, Transition, WorldModel, LOST_SIGMA_M, RELOCATE_M};
+pub use model::{Felt, LocalisationStats, Transition, WorldModel, LOST_SIGMA_M, RELOCATE_M};

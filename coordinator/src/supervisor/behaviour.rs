@@ -139,11 +139,19 @@ impl Handler<RobotEvent> for Supervisor {
                 warn!(
                     robot = e.robot_id,
                     moved_m,
+                    along_mm = { b.along_mm },
+                    left_mm = { b.left_mm },
                     peak_mg = { b.peak_mg },
                     "robot bumped"
                 );
                 if self.started && self.done.is_some() {
-                    if let Some(why) = self.model.bumped(e.robot_id, moved_m, b.at_ms, e.at) {
+                    let felt = world_model::Felt {
+                        moved_m,
+                        along_m: f64::from(b.along_mm) * 1e-3,
+                        left_m: f64::from(b.left_mm) * 1e-3,
+                        since_ms: b.at_ms,
+                    };
+                    if let Some(why) = self.model.bumped(e.robot_id, felt, e.at) {
                         self.on_lost(e.robot_id, why, ctx);
                     }
                 }

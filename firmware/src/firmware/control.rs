@@ -66,6 +66,8 @@ impl<B: Board> Firmware<B> {
                 at_ms: b.at.as_millis() as u32,
                 peak_mg: b.peak_mg.clamp(0.0, f32::from(u16::MAX)) as u16,
                 moved_mm: (b.moved_m * 1e3).clamp(0.0, f32::from(u16::MAX)) as u16,
+                along_mm: (b.moved[0] * 1e3).clamp(-32767.0, 32767.0) as i16,
+                left_mm: (b.moved[1] * 1e3).clamp(-32767.0, 32767.0) as i16,
                 cause: b.cause as u8,
             });
         }

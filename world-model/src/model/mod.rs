@@ -21,6 +21,8 @@ mod tests;
 mod update;
 mod zones;
 
+pub use update::Felt;
+
 use estimate::{
     corrected, sigma_along, sigmas, widen, Correction, Estimate, Lost, TapeAlong, TapeMatch,
     RECENT_MS,

@@ -522,3 +522,98 @@ impl TrackLoopLen {
         1.0 + 0.3 * PI
     }
 }
+
+/// A robot that reports a bump after its dragged wheels counted 40 mm and 35° of travel that
+/// never happened: the model goes back to where it stood before the jolt, widens its pose to
+/// cover the push and loses it; on a floor no tape reaches, it is only widened.
+#[test]
+fn a_bump_takes_the_estimate_back_before_the_jolt_and_widens_it() {
+    let world = presets::preset("oval").unwrap();
+    let model = WorldModel::new(Arc::new(world.track.clone()));
+    model.add(1);
+    let update = |uptime_ms: u32, pose: Pose| {
+        let mut state = protocol::RobotState::default();
+        state.uptime_ms = uptime_ms;
+        // Its line sensor sees no tape: only odometry and the bump move the estimate.
+        state.line.flags = LINE_LOST;
+        StateUpdated {
+            robot_id: 1,
+            at: tokio::time::Instant::now(),
+            state,
+            reduced: false,
+            pose,
+        }
+    };
+    let felt = |m: f64| Felt {
+        moved_m: m,
+        along_m: 0.0,
+        left_m: m,
+        since_ms: 200,
+    };
+    let start = Pose {
+        x: 0.35,
+        y: 0.15,
+        theta: 0.0,
+    };
+    for k in 0..10 {
+        model.apply(&update(k * 20, start));
+    }
+    // The jolt from 200 ms on: the odometry runs off.
+    let off = Pose {
+        x: 0.39,
+        y: 0.16,
+        theta: 0.6,
+    };
+    for k in 10..14 {
+        model.apply(&update(k * 20, off));
+    }
+    assert!((model.views()[0].pose.x - 0.39).abs() < 0.01);
+    let why = model
+        .bumped(1, felt(0.012), tokio::time::Instant::now())
+        .expect("lost");
+    assert!(why.contains("12 mm"), "{why}");
+    let v = &model.views()[0];
+    assert_eq!(v.localisation, Localisation::Lost);
+    assert!(
+        (v.pose.x - start.x).abs() < 1e-9 && v.pose.theta.abs() < 1e-9,
+        "{:?}",
+        v.pose
+    );
+    assert!(
+        v.uncertainty.position_m >= 0.018 - 1e-9,
+        "{:?}",
+        v.uncertainty
+    );
+    assert!(v.uncertainty.heading_rad >= 20f64.to_radians() - 1e-9);
+    // Further odometry goes on from the pose before the jolt.
+    model.apply(&update(300, Pose { x: 0.40, ..off }));
+    let p = model.views()[0].pose;
+    assert!(
+        ((p.x - start.x).hypot(p.y - start.y) - 0.01).abs() < 1e-6,
+        "{p:?}"
+    );
+
+    // Far from every tape nothing could find it again: only widened.
+    let far = Pose {
+        x: 0.9,
+        y: 0.55,
+        theta: 0.0,
+    };
+    let open = WorldModel::new(Arc::new(world.track.clone()));
+    open.add(1);
+    open.apply(&update(0, far));
+    assert!(
+        open.track()
+            .nearest(Point2::new(far.x, far.y))
+            .unwrap()
+            .distance_m
+            > RELOCATE_M + BUMP_MAX_M
+    );
+    assert_eq!(
+        open.bumped(1, felt(0.012), tokio::time::Instant::now()),
+        None
+    );
+    let v = &open.views()[0];
+    assert_eq!(v.localisation, Localisation::Tracking);
+    assert!(v.uncertainty.position_m >= 0.018 - 1e-9);
+}

@@ -289,25 +289,68 @@ impl WorldModel {
     }
 }
 
+/// What a robot felt of a bump, as its `Bump` event says.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Felt {
+    /// How far it was moved, metres (0 when only its wheels turning at rest gave it away).
+    pub moved_m: f64,
+    /// The move along its heading and to its left, metres.
+    pub along_m: f64,
+    /// See `along_m`.
+    pub left_m: f64,
+    /// When the jolt began, the robot's uptime in milliseconds.
+    pub since_ms: u32,
+}
+
 impl WorldModel {
     /// Robot `id` felt itself moved by something other than its wheels from its uptime
     /// `since_ms` on, by about `moved_m` (the robot's own estimate; 0 when only its wheels
     /// turning at rest gave it away): its estimate goes back to where it stood before, widened
     /// at once to cover the move and any turn, and it is lost until the tape fixes it again.
-    /// Where no tape is within reach it is only widened: nothing could fix it there. Returns why, for the supervisor to stop and re-localise it; `None` for a robot the
+    /// Where no tape is within reach it is only widened: nothing could fix it there. A jolt along
+    /// the heading (a slip under a load, a push from ahead) only corrects the odometry by what
+    /// the body moved beyond its wheels, and the robot stays tracked. Returns why, for the supervisor to stop and re-localise it; `None` for a robot the
     /// model has no estimate of yet.
-    pub fn bumped(
-        &self,
-        id: u16,
-        moved_m: f64,
-        since_ms: u32,
-        at: tokio::time::Instant,
-    ) -> Option<String> {
+    pub fn bumped(&self, id: u16, felt: Felt, at: tokio::time::Instant) -> Option<String> {
+        let Felt {
+            moved_m,
+            along_m,
+            left_m,
+            since_ms,
+        } = felt;
         let mut e = self.estimates.get_mut(&id)?;
         if e.last_odometry.is_none() {
             return None;
         }
         let here = e.recent.back().map(|&(_, p)| p)?;
+        if moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
+            // A jolt along the heading: the body went `along_m` farther than its wheels say
+            // (a wheel slipping under a load, a hard meeting with it, a push from ahead or
+            // behind). That is the odometry's error, given back; no move across the heading,
+            // which the odometry cannot see, so the robot is no more lost than before.
+            let (s, c) = here.theta.sin_cos();
+            let back = Pose {
+                x: here.x + along_m * c,
+                y: here.y + along_m * s,
+                theta: here.theta,
+            };
+            if let Some(odometry) = e.last_odometry {
+                e.correction = Correction::between(odometry, back);
+            }
+            let (c0, s0) = (c, s);
+            // Uncertain along the heading by half the slip.
+            let g = Vector3::new(c0, s0, 0.0);
+            e.cov += g * g.transpose() * (along_m / 2.0).powi(2);
+            let uncertainty = sigmas(&e.cov);
+            drop(e);
+            self.changed(id);
+            if let Some(mut entry) = self.robots.get_mut(&id) {
+                let view = Arc::make_mut(&mut entry);
+                view.pose = back;
+                view.uncertainty = uncertainty;
+            }
+            return None;
+        }
         let tape_near = self
             .track
             .nearest(Point2::new(here.x, here.y))

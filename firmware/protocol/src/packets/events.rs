@@ -87,6 +87,11 @@ wire_struct! {
         /// How far the unexplained acceleration moved the robot, integrated twice over the
         /// jolt, millimetres; for wheels turned while idle, the wheels' travel.
         pub moved_mm: u16,
+        /// The move along the robot's heading at the jolt's start, millimetres (negative:
+        /// backwards; a wheel slipping forward under a load reads as a move backwards).
+        pub along_mm: i16,
+        /// The move to the robot's left, millimetres.
+        pub left_mm: i16,
         /// A [`BumpCause`](super::BumpCause) code.
         pub cause: u8,
     }
