@@ -25,6 +25,8 @@ const QUIET_LOOPS: u8 = 3;
 /// A jolt longer than this is reported at once, ended or not: the host must hear of it while
 /// it goes on.
 const LONGEST_JOLT: Duration = Duration::from_millis(300);
+/// The most a robot's own tyres accelerate it, m/s² (twice the grip of rubber on the floor).
+const MOST_OWN_MPS2: f32 = 20.0;
 /// A robot counts as standing once its motors were off and its wheels read zero for this long:
 /// wheels coasting after a stop still count pulses.
 const SETTLED: Duration = Duration::from_millis(300);
@@ -122,7 +124,9 @@ impl BumpDetector {
         let Some(last_speed) = self.last_speed.replace(speed) else {
             return None;
         };
-        let along = (speed - last_speed) / s.dt.max(1e-4);
+        // No tyre pushes a body harder than its grip: a faster change of the measured speed is
+        // the speed meter's (two pulses close together), not the robot's.
+        let along = ((speed - last_speed) / s.dt.max(1e-4)).clamp(-MOST_OWN_MPS2, MOST_OWN_MPS2);
         if threshold_mg == 0 {
             self.jolt = None;
             return None;
@@ -134,8 +138,10 @@ impl BumpDetector {
         let before = core::mem::replace(&mut self.last_unexplained, unexplained);
         let mg = libm::hypotf(unexplained[0], unexplained[1]) / MPS2_PER_MG;
         let threshold = f32::from(threshold_mg);
+        let felt_mg = libm::hypotf(f32::from(s.accel_mg[0]), f32::from(s.accel_mg[1]));
         let jolt = match self.jolt.as_mut() {
-            None if mg > threshold => {
+            // A jolt starts in the accelerometer, not in the wheel speeds alone.
+            None if mg > threshold && felt_mg > threshold / 2.0 => {
                 let velocity = [before[0] * s.dt, before[1] * s.dt];
                 self.jolt.insert(Jolt {
                     start: s.now,
@@ -254,6 +260,19 @@ mod tests {
         assert_eq!(b.cause, BumpCause::Jolt);
         assert!(b.peak_mg > 2500.0, "{b:?}");
         assert!((b.moved_m - shift).abs() < 0.005, "{b:?}");
+    }
+
+    #[test]
+    fn a_glitch_of_the_wheel_speeds_alone_is_no_bump() {
+        let mut d = BumpDetector::new();
+        for k in 0..40u64 {
+            // Two pulses close together read as 2 m/s for one loop.
+            let v = if k == 10 { 2.0 } else { 0.1 };
+            assert_eq!(
+                d.update(&sample(k * 5, [0, 0], v, (0, 0), false), &settings()),
+                None
+            );
+        }
     }
 
     #[test]
