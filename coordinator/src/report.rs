@@ -136,6 +136,8 @@ pub struct KickRecord {
     pub how: crate::plan::KickHow,
     /// Shift along x and y (metres) and turn (radians).
     pub by: [f64; 3],
+    /// The robot's true pose when the kick landed: x, y (metres), heading (radians).
+    pub from: [f64; 3],
     /// Why it was not given, if it was not.
     pub refused: Option<String>,
 }
@@ -261,6 +263,7 @@ struct JsonKick {
     dx_mm: f64,
     dy_mm: f64,
     turn_deg: f64,
+    from: [f64; 3],
     refused: Option<String>,
     text: String,
 }
@@ -453,6 +456,7 @@ impl Report {
                     dx_mm: k.by[0] * 1e3,
                     dy_mm: k.by[1] * 1e3,
                     turn_deg: k.by[2].to_degrees(),
+                    from: k.from,
                     refused: k.refused.clone(),
                     text: k.describe(),
                 })
@@ -686,6 +690,7 @@ mod tests {
             at_s: 1.48,
             how: crate::plan::KickHow::Shove(Duration::from_millis(20)),
             by: [0.01, 0.0, 0.0],
+            from: [0.5, 0.5, 0.0],
             refused: None,
         });
         // Both robot contacts began 20 ms into the shove; the wall contact long after.

@@ -156,7 +156,8 @@ pub(super) fn inject_faults(
 /// into the robot's frame when it is sideways.
 #[cfg(feature = "sim")]
 fn land_kick(sim: &mut Simulation, index: usize, kick: Kick) -> KickRecord {
-    let heading = sim.robots()[index].pose().theta;
+    let from = sim.robots()[index].pose();
+    let heading = from.theta;
     let by = match kick.drawn {
         Some(seed) => sim.draw_kick(
             index,
@@ -175,6 +176,7 @@ fn land_kick(sim: &mut Simulation, index: usize, kick: Kick) -> KickRecord {
         at_s: sim.now().as_secs_f64(),
         how: kick.how,
         by: by.unwrap_or_default(),
+        from: [from.x, from.y, from.theta],
         refused: None,
     };
     record.refused = match by {
