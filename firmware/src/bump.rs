@@ -121,9 +121,7 @@ impl BumpDetector {
         } else {
             0.0
         };
-        let Some(last_speed) = self.last_speed.replace(speed) else {
-            return None;
-        };
+        let last_speed = self.last_speed.replace(speed)?;
         // No tyre pushes a body harder than its grip: a faster change of the measured speed is
         // the speed meter's (two pulses close together), not the robot's.
         let along = ((speed - last_speed) / s.dt.max(1e-4)).clamp(-MOST_OWN_MPS2, MOST_OWN_MPS2);
@@ -156,9 +154,14 @@ impl BumpDetector {
             Some(j) => j,
         };
         jolt.peak_mg = jolt.peak_mg.max(mg);
-        for k in 0..2 {
-            jolt.velocity[k] += unexplained[k] * s.dt;
-            jolt.moved[k] += jolt.velocity[k] * s.dt;
+        for ((v, m), a) in jolt
+            .velocity
+            .iter_mut()
+            .zip(jolt.moved.iter_mut())
+            .zip(unexplained)
+        {
+            *v += a * s.dt;
+            *m += *v * s.dt;
         }
         jolt.lasted += s.dt;
         jolt.quiet = if mg < threshold / 2.0 {

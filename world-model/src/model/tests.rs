@@ -532,8 +532,10 @@ fn a_bump_takes_the_estimate_back_before_the_jolt_and_widens_it() {
     let model = WorldModel::new(Arc::new(world.track.clone()));
     model.add(1);
     let update = |uptime_ms: u32, pose: Pose| {
-        let mut state = protocol::RobotState::default();
-        state.uptime_ms = uptime_ms;
+        let mut state = protocol::RobotState {
+            uptime_ms,
+            ..Default::default()
+        };
         // Its line sensor sees no tape: only odometry and the bump move the estimate.
         state.line.flags = LINE_LOST;
         StateUpdated {

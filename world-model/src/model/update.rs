@@ -319,9 +319,8 @@ impl WorldModel {
             since_ms,
         } = felt;
         let mut e = self.estimates.get_mut(&id)?;
-        if e.last_odometry.is_none() {
-            return None;
-        }
+        // A robot that has not reported yet has no estimate to widen.
+        let odometry = e.last_odometry?;
         let here = e.recent.back().map(|&(_, p)| p)?;
         if moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
             // A jolt along the heading: the body went `along_m` farther than its wheels say
@@ -334,9 +333,7 @@ impl WorldModel {
                 y: here.y + along_m * s,
                 theta: here.theta,
             };
-            if let Some(odometry) = e.last_odometry {
-                e.correction = Correction::between(odometry, back);
-            }
+            e.correction = Correction::between(odometry, back);
             let (c0, s0) = (c, s);
             // Uncertain along the heading by half the slip.
             let g = Vector3::new(c0, s0, 0.0);
@@ -382,7 +379,7 @@ impl WorldModel {
             .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
             .map(|&(_, p)| p);
         let mut pose = None;
-        if let (Some(before), Some(odometry)) = (before, e.last_odometry) {
+        if let Some(before) = before {
             e.correction = Correction::between(odometry, before);
             pose = Some(before);
         }
