@@ -3,10 +3,10 @@
 //! tunable margin; a move is swept from where the robot's queued moves will leave it, in steps of
 //! at most 5 mm and 5°, against every other robot where it stands and where its own queued moves
 //! will leave it. Each footprint also grows by its robot's position uncertainty, so a robot the
-//! world model is unsure of gets a wider berth: by 1σ for a robot the model tracks, and for a
-//! lost or just-bumped one by its whole uncertainty region ([`LOST_SIGMAS`] σ, and what a turn of
-//! as many σ of its heading sweeps), an exclusion zone the others keep clear of (see
-//! [`Safety::reach`]).
+//! world model is unsure of gets a wider berth: the mover's by 1σ ([`Safety::berth`]); every other
+//! robot's by 1σ when the model tracks it, and when it is lost or just bumped by its whole
+//! uncertainty region ([`LOST_SIGMAS`] σ, and what a turn of as many σ of its heading sweeps), an
+//! exclusion zone the others keep clear of ([`Safety::reach`]).
 
 use behaviour_api::{Intent, Localisation, MoveCommand, Pose, RobotView, WorldSnapshot};
 
@@ -98,6 +98,12 @@ impl Broad {
 }
 
 impl Safety {
+    /// How far a moving robot's own footprint is grown: the margin and 1σ of its position,
+    /// tracked or lost.
+    pub fn berth(&self, v: &RobotView) -> f64 {
+        self.margin_m + UNCERTAINTY_SIGMAS * v.uncertainty.position_m
+    }
+
     /// How far robot `v`'s footprint is grown beyond its plain size: the margin, and its
     /// uncertainty. For a tracked robot, [`UNCERTAINTY_SIGMAS`] σ of its position. For a lost
     /// one (or one more uncertain than the model's lost limit, where no tape could find it),
@@ -136,8 +142,11 @@ impl Safety {
         let Some(path) = self.path(intent, start) else {
             return Ok(());
         };
-        // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty.
-        let my_margin = self.reach(me);
+        // An uncertain pose gets a wider berth: each footprint grows by its own uncertainty. The
+        // mover is taken within 1σ even when lost: its whole region is what the others keep
+        // clear of, and a lost robot searching for the tape beside another (a queue, pushers
+        // side by side) could otherwise never move (record 0031).
+        let my_margin = self.berth(me);
         self.within_arena(me, &path, my_margin, world.arena)?;
         let broad = Broad::new(self, &path, my_margin);
         let widest_margin = world
@@ -607,9 +616,9 @@ mod tests {
 
             /// The rule the supervisor keeps: a move the check approves, from robots clear of
             /// each other's grown footprints, sweeps footprints (at the check's own steps) that
-            /// touch none of the other robot's possible poses, wherever each robot really is
-            /// within its region: a tracked one within 1σ, a lost one within 3σ and turned by
-            /// up to 3σ of its heading.
+            /// touch none of the other robot's possible poses: the mover anywhere within 1σ of
+            /// where the check sweeps it, the other within its region (a tracked one within 1σ,
+            /// a lost one within 3σ and turned by up to 3σ of its heading).
             #[test]
             fn an_approved_move_never_reaches_where_the_other_robot_may_be(
                 a in (0.3..0.7f64, 0.3..0.7f64, -PI..PI),
@@ -626,8 +635,9 @@ mod tests {
                 let pb = Pose { x: a.0 + b.0 * b.1.cos(), y: a.1 + b.0 * b.1.sin(), theta: b.2 };
                 let me = robot(1, pa, (sigmas.0, sigmas.1), lost.0);
                 let other = robot(2, pb, (sigmas.2, sigmas.3), lost.1);
-                let grown = |v: &RobotView| Footprint::new(v.pose, s.length_m, s.width_m, s.reach(v));
-                if grown(&me).overlaps(&grown(&other)) {
+                let mine_grown = Footprint::new(pa, s.length_m, s.width_m, s.berth(&me));
+                let theirs_grown = Footprint::new(pb, s.length_m, s.width_m, s.reach(&other));
+                if mine_grown.overlaps(&theirs_grown) {
                     // Already inside each other's regions: the check then only lets them part.
                     return Ok(());
                 }
@@ -644,7 +654,9 @@ mod tests {
                 let really_b = possible(&other, pb, (where_b.0, where_b.1), where_b.2);
                 let theirs = Footprint::new(really_b, s.length_m, s.width_m, 0.0);
                 for p in s.path(&intent, pa).expect("a move moves") {
-                    let really_a = possible(&me, p, (where_a.0, where_a.1), where_a.2);
+                    // The mover within 1σ of where the check sweeps it, lost or not.
+                    let tracked = RobotView { localisation: Localisation::Tracking, ..me.clone() };
+                    let really_a = possible(&tracked, p, (where_a.0, where_a.1), where_a.2);
                     let mine = Footprint::new(really_a, s.length_m, s.width_m, 0.0);
                     prop_assert!(
                         !mine.overlaps(&theirs),

@@ -16,11 +16,11 @@ impl Supervisor {
             why, "robot lost: stopping it and re-localising it"
         );
         // The sweep stays where the safety check lets the lost robot's footprint go: its
-        // circumscribed circle, the margin and its uncertainty (with room for it to grow a
-        // little on the way) inside the arena.
+        // circumscribed circle, the margin and its uncertainty (1σ against the walls, with room
+        // for it to grow a little on the way) inside the arena.
         let clear = (self.safety.length_m / 2.0).hypot(self.safety.width_m / 2.0)
-            + self.safety.reach(&view)
-            + safety::LOST_SIGMAS * SWEEP_SIGMA_GROWTH_M;
+            + self.safety.margin_m
+            + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
         let (w, h) = self.arena;
         let room = ([clear, clear], [w - clear, h - clear]);
         let (routine, first) = Relocaliser::start(&view, self.model.track(), room, Instant::now());
