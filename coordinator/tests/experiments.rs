@@ -112,7 +112,9 @@ fn a_follower_knocked_off_the_ring_at_rest_is_relocalised_and_the_token_goes_rou
     let p = Plan::sim("token_ring")
         .duration(Duration::from_secs(300))
         .kick(kick("2:5:0.05,0"));
-    let report = relocalised(p, 2, 0.04);
+    // The kick moves the body 5 cm; the follower, still moving when put down, drives on a little
+    // before its firmware loses the line, and its odometry ends over 2.5 cm off.
+    let report = relocalised(p, 2, 0.025);
     let kicked = report.robots.iter().find(|r| r.id == 2).expect("robot 2");
     assert!(kicked.worst_model_error_m.unwrap() > 0.04, "{report}");
 }
