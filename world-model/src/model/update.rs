@@ -322,7 +322,13 @@ impl WorldModel {
         // A robot that has not reported yet has no estimate to widen.
         let odometry = e.last_odometry?;
         let here = e.recent.back().map(|&(_, p)| p)?;
-        if moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
+        let tape_near = self
+            .track
+            .nearest(Point2::new(here.x, here.y))
+            .is_some_and(|n| n.distance_m < RELOCATE_M + BUMP_MAX_M);
+        // Only where tape can check it: on a bare floor a jolt's integral is the one estimate
+        // of the move there is, and the wheels' count is no worse.
+        if tape_near && moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
             // A jolt along the heading: the body went `along_m` farther than its wheels say
             // (a wheel slipping under a load, a hard meeting with it, a push from ahead or
             // behind). That is the odometry's error, given back; no move across the heading,
@@ -348,10 +354,6 @@ impl WorldModel {
             }
             return None;
         }
-        let tape_near = self
-            .track
-            .nearest(Point2::new(here.x, here.y))
-            .is_some_and(|n| n.distance_m < RELOCATE_M + BUMP_MAX_M);
         if !tape_near {
             // No tape could ever localise it here: it drives on, as uncertain as the move made
             // it, and the others keep that much farther away.
