@@ -82,8 +82,9 @@ fn a_robot_shoved_at_a_junction_touches_nothing() {
     assert!(r.success(), "{r}");
 }
 
-/// A pusher shoved 12 mm sideways mid-push, its neighbour beside it and the box ahead: the
-/// supervisor stops it and the run ends with a named verdict, and nothing touches.
+/// A pusher shoved 12 mm sideways mid-push, its neighbour beside it and the box ahead: it feels
+/// the bump, the supervisor holds what would touch, the run ends with a named verdict, and
+/// nothing touches.
 #[test]
 fn a_pusher_shoved_mid_push_touches_nothing_and_the_run_ends_with_a_verdict() {
     let r = kicked("cooperative_push", 7, "shove:1:15.5:-0.012,0.0,0", 120);
@@ -94,7 +95,11 @@ fn a_pusher_shoved_mid_push_touches_nothing_and_the_run_ends_with_a_verdict() {
         (x - b[0]).hypot(y - b[1]) < 0.12 && r.obstacles[0].moved_m > 0.0,
         "robot 1 was not at the box when shoved: {r}"
     );
-    assert!(kicked_robot(&r).localisation.lost_episodes >= 1, "{r}");
+    // It felt the bump: the model widened its pose well beyond a tracked robot's few mm.
+    assert!(
+        kicked_robot(&r).localisation.worst_uncertainty_m > 0.012,
+        "{r}"
+    );
     assert!(
         !r.verdict.summary.contains("did not finish"),
         "the run hung: {r}"

@@ -368,10 +368,16 @@ impl WorldModel {
             }
             return None;
         }
-        if e.lost.is_none() {
-            e.stats.lost_episodes += 1;
+        // A small bump the tape takes up: the estimate goes back before it and widens, and the
+        // robot drives on tracked (the tape's gates reach 12 mm either side); stopping it, and
+        // every robot near it, cost more than the bump did.
+        let small = moved_m > 0.0 && moved_m < BUMP_LOST_M && e.lost.is_none();
+        if !small {
+            if e.lost.is_none() {
+                e.stats.lost_episodes += 1;
+            }
+            start_lost(&mut e, at);
         }
-        start_lost(&mut e, at);
         // Back to where the estimate stood before the jolt began: what the odometry counted
         // since is the dragged wheels', not travel.
         let before = e
@@ -389,8 +395,15 @@ impl WorldModel {
         // centre, the start of the jolt); the heading may be anything a hand gives.
         // Below the lost limit: once the tape fixes it across, along the tape it stays this
         // uncertain until a mark, and beyond the limit it would be lost again at once.
-        let reach = (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M);
-        widen(&mut e.cov, reach, BUMP_TURN_RAD);
+        let (reach, turn) = if small {
+            (BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD)
+        } else {
+            (
+                (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
+                BUMP_TURN_RAD,
+            )
+        };
+        widen(&mut e.cov, reach, turn);
         let uncertainty = sigmas(&e.cov);
         e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
         drop(e);
@@ -398,10 +411,15 @@ impl WorldModel {
         if let Some(mut entry) = self.robots.get_mut(&id) {
             let view = Arc::make_mut(&mut entry);
             view.uncertainty = uncertainty;
-            view.localisation = Localisation::Lost;
+            if !small {
+                view.localisation = Localisation::Lost;
+            }
             if let Some(p) = pose {
                 view.pose = p;
             }
+        }
+        if small {
+            return None;
         }
         Some(if moved_m > 0.0 {
             format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3)
