@@ -395,6 +395,7 @@ impl Report {
     /// The report as JSON.
     pub fn to_json(&self) -> String {
         let pose = |p: Pose| [p.x, p.y, p.theta];
+        let split = self.contacts_at_kick_and_other();
         let j = JsonReport {
             behaviour: &self.behaviour,
             world: &self.world,
@@ -461,8 +462,8 @@ impl Report {
                     text: k.describe(),
                 })
                 .collect(),
-            contacts_at_kick: self.contacts_at_kick_and_other().map(|c| c.0),
-            contacts_other: self.contacts_at_kick_and_other().map(|c| c.1),
+            contacts_at_kick: split.map(|c| c.0),
+            contacts_other: split.map(|c| c.1),
             worst_model_error_mm: self.worst_model_error_m().map(|e| e * 1e3),
             worst_model_heading_error_deg: self
                 .worst_model_heading_error_rad()

@@ -27,8 +27,8 @@ const QUIET_LOOPS: u8 = 3;
 const LONGEST_JOLT: Duration = Duration::from_millis(300);
 /// The most a robot's own tyres accelerate it, m/s² (twice the grip of rubber on the floor).
 const MOST_OWN_MPS2: f32 = 20.0;
-/// A robot counts as standing once its motors were off and its wheels read zero for this long:
-/// wheels coasting after a stop still count pulses.
+/// A robot counts as standing once its motors were off for this long: wheels coasting after a
+/// stop still count pulses.
 const SETTLED: Duration = Duration::from_millis(300);
 
 /// A bump, as the [`Bump`](protocol::packets::Bump) event reports it.
@@ -38,9 +38,11 @@ pub struct Bump {
     pub at: Instant,
     /// The largest unexplained acceleration, milli-g.
     pub peak_mg: f32,
-    /// How far it moved the robot, metres.
+    /// How far it moved the robot, metres (for wheels turned while idle, their travel, of
+    /// unknown direction).
     pub moved_m: f32,
-    /// The move along the heading and to the left, metres (robot frame at its start).
+    /// The move along the heading and to the left, metres (robot frame at its start); zero
+    /// for wheels turned while idle.
     pub moved: [f32; 2],
     /// What gave it away.
     pub cause: BumpCause,
@@ -88,7 +90,7 @@ pub struct BumpDetector {
     /// before it crossed the threshold.
     last_unexplained: [f32; 2],
     jolt: Option<Jolt>,
-    /// Since when the robot stood idle with its wheels stopped, and its pulse counts then.
+    /// Since when the robot stood idle, and its pulse counts when it settled.
     standing: Option<(Instant, (i32, i32))>,
 }
 

@@ -304,13 +304,14 @@ pub struct Felt {
 
 impl WorldModel {
     /// Robot `id` felt itself moved by something other than its wheels from its uptime
-    /// `since_ms` on, by about `moved_m` (the robot's own estimate; 0 when only its wheels
-    /// turning at rest gave it away): its estimate goes back to where it stood before, widened
-    /// at once to cover the move and any turn, and it is lost until the tape fixes it again.
-    /// Where no tape is within reach it is only widened: nothing could fix it there. A jolt along
-    /// the heading (a slip under a load, a push from ahead) only corrects the odometry by what
-    /// the body moved beyond its wheels, and the robot stays tracked. Returns why, for the supervisor to stop and re-localise it; `None` for a robot the
-    /// model has no estimate of yet.
+    /// `since_ms` on, by about `moved_m` (the robot's own estimate). Where tape is within reach,
+    /// wheels turned while it stood are left to the line reading at rest; a jolt along the
+    /// heading (a slip under a load, a push from ahead) only gives the odometry back its error,
+    /// and the robot stays tracked; any other bump takes the estimate back to where it stood
+    /// before the jolt and widens it to cover the move and a turn, and from 15 mm on the robot
+    /// is lost until the tape fixes it again. Where no tape is within reach it is only widened:
+    /// nothing could fix it there. Returns why the robot is lost, for the supervisor to stop and
+    /// re-localise it; `None` when it is not, or the model has no estimate of it yet.
     pub fn bumped(&self, id: u16, felt: Felt, at: tokio::time::Instant) -> Option<String> {
         let Felt {
             moved_m,
@@ -326,12 +327,18 @@ impl WorldModel {
             .track
             .nearest(Point2::new(here.x, here.y))
             .is_some_and(|n| n.distance_m < RELOCATE_M + BUMP_MAX_M);
+        if tape_near && along_m == 0.0 && left_m == 0.0 {
+            // Only its wheels turned while it stood: the odometry counted them already, and on
+            // a tape the line reading's own rule (`displaced_at_rest`) judges the move.
+            return None;
+        }
+        let lost = tape_near && !(moved_m > 0.0 && moved_m < BUMP_LOST_M && e.lost.is_none());
+        let mut pose = None;
         // Only where tape can check it: on a bare floor a jolt's integral is the one estimate
         // of the move there is, and the wheels' count is no worse.
         if tape_near && moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
-            // A jolt along the heading: the body went `along_m` farther than its wheels say
-            // (a wheel slipping under a load, a hard meeting with it, a push from ahead or
-            // behind). That is the odometry's error, given back; no move across the heading,
+            // The body went `along_m` farther than its wheels say: the odometry's error, given
+            // back, uncertain by half of it along the heading. No move across the heading,
             // which the odometry cannot see, so the robot is no more lost than before.
             let (s, c) = here.theta.sin_cos();
             let back = Pose {
@@ -340,92 +347,79 @@ impl WorldModel {
                 theta: here.theta,
             };
             e.correction = Correction::between(odometry, back);
-            let (c0, s0) = (c, s);
-            // Uncertain along the heading by half the slip.
-            let g = Vector3::new(c0, s0, 0.0);
+            let g = Vector3::new(c, s, 0.0);
             e.cov += g * g.transpose() * (along_m / 2.0).powi(2);
-            let uncertainty = sigmas(&e.cov);
             drop(e);
-            self.changed(id);
-            if let Some(mut entry) = self.robots.get_mut(&id) {
-                let view = Arc::make_mut(&mut entry);
-                view.pose = back;
-                view.uncertainty = uncertainty;
-            }
+            self.show_bump(id, Some(back), false);
             return None;
         }
         if !tape_near {
-            // No tape could ever localise it here: it drives on, as uncertain as the move made
-            // it, and the others keep that much farther away.
-            let reach = (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M);
-            widen(&mut e.cov, reach, BUMP_TURN_RAD);
-            let uncertainty = sigmas(&e.cov);
-            e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
-            drop(e);
-            self.changed(id);
-            if let Some(mut entry) = self.robots.get_mut(&id) {
-                Arc::make_mut(&mut entry).uncertainty = uncertainty;
-            }
-            return None;
-        }
-        // A small bump the tape takes up: the estimate goes back before it and widens, and the
-        // robot drives on tracked (the tape's gates reach 12 mm either side); stopping it, and
-        // every robot near it, cost more than the bump did.
-        let small = moved_m > 0.0 && moved_m < BUMP_LOST_M && e.lost.is_none();
-        if !small {
-            if e.lost.is_none() {
-                e.stats.lost_episodes += 1;
-            }
-            start_lost(&mut e, at);
-        }
-        // Back to where the estimate stood before the jolt began: what the odometry counted
-        // since is the dragged wheels', not travel.
-        let before = e
-            .recent
-            .iter()
-            .rev()
-            .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
-            .map(|&(_, p)| p);
-        let mut pose = None;
-        if let Some(before) = before {
-            e.correction = Correction::between(odometry, before);
-            pose = Some(before);
-        }
-        // The robot's estimate of the move misses what it could not feel (a turn about its
-        // centre, the start of the jolt); the heading may be anything a hand gives.
-        // Below the lost limit: once the tape fixes it across, along the tape it stays this
-        // uncertain until a mark, and beyond the limit it would be lost again at once.
-        let (reach, turn) = if small {
-            (BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD)
-        } else {
-            (
+            // It drives on, as uncertain as the move made it; the others keep that much
+            // farther away.
+            widen(
+                &mut e.cov,
                 (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
                 BUMP_TURN_RAD,
-            )
-        };
-        widen(&mut e.cov, reach, turn);
-        let uncertainty = sigmas(&e.cov);
-        e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(uncertainty.position_m);
+            );
+        } else {
+            if lost {
+                if e.lost.is_none() {
+                    e.stats.lost_episodes += 1;
+                }
+                start_lost(&mut e, at);
+            }
+            // Back to where the estimate stood before the jolt began: what the odometry counted
+            // since is the dragged wheels', not travel.
+            if let Some(&(_, before)) = e
+                .recent
+                .iter()
+                .rev()
+                .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
+            {
+                e.correction = Correction::between(odometry, before);
+                pose = Some(before);
+            }
+            // The felt move misses what the robot could not feel (a turn about its centre, the
+            // start of the jolt). A lost robot stays below the lost limit: once the tape fixes
+            // it across, along the tape it stays this uncertain until a mark, and beyond the
+            // limit it would be lost again at once.
+            let (reach, turn) = if lost {
+                (
+                    (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
+                    BUMP_TURN_RAD,
+                )
+            } else {
+                (BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD)
+            };
+            widen(&mut e.cov, reach, turn);
+        }
         drop(e);
+        self.show_bump(id, pose, lost);
+        lost.then(|| format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3))
+    }
+
+    /// Writes what a bump did to robot `id`'s estimate into its view: its uncertainty, its pose
+    /// when the bump moved it, and lost when it is.
+    fn show_bump(&self, id: u16, pose: Option<Pose>, lost: bool) {
+        let Some(uncertainty) = self.estimates.get_mut(&id).map(|mut e| {
+            let u = sigmas(&e.cov);
+            e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(u.position_m);
+            u
+        }) else {
+            return;
+        };
+        // Noted before the map's write guard is taken, as `publish` does.
         self.changed(id);
         if let Some(mut entry) = self.robots.get_mut(&id) {
             let view = Arc::make_mut(&mut entry);
             view.uncertainty = uncertainty;
-            if !small {
-                view.localisation = Localisation::Lost;
-            }
             if let Some(p) = pose {
                 view.pose = p;
             }
+            if lost {
+                view.localisation = Localisation::Lost;
+            }
         }
-        if small {
-            return None;
-        }
-        Some(if moved_m > 0.0 {
-            format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3)
-        } else {
-            "its wheels turned while it stood with its motors off".to_string()
-        })
     }
 }
 
