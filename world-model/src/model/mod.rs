@@ -122,6 +122,9 @@ const LOST_FLOOR_RAD: f64 = 15.0 * PI / 180.0;
 /// [`LOST_FLOOR_M`]; its heading this uncertain: a hand turns it up to 20° as it shoves.
 const BUMP_MARGIN: f64 = 1.5;
 const BUMP_MAX_M: f64 = 0.9 * LOST_SIGMA_M;
+/// The most a reported bump is believed to have moved a robot along its heading: random kicks
+/// draw up to 3 cm, and the robot's integral has read 56 mm for one of them.
+const BUMP_CREDIBLE_M: f64 = 0.1;
 /// A bump that moved the robot less than this leaves it tracked, its heading this uncertain.
 const BUMP_LOST_M: f64 = 0.015;
 const SMALL_BUMP_TURN_RAD: f64 = 10.0 * PI / 180.0;

@@ -636,3 +636,38 @@ fn a_bump_takes_the_estimate_back_before_the_jolt_and_widens_it() {
     assert_eq!(v.localisation, Localisation::Tracking);
     assert!(v.uncertainty.position_m >= 0.018 - 1e-9);
 }
+
+/// A robot that reports a bump of 32 m along its heading (a broken accelerometer, or a peer that
+/// lies) moves its estimate no farther than a credible bump.
+#[test]
+fn a_bump_of_metres_moves_the_estimate_no_farther_than_a_bump_can() {
+    let world = presets::preset("oval").unwrap();
+    let model = WorldModel::new(Arc::new(world.track.clone()));
+    model.add(1);
+    let start = Pose {
+        x: 0.35,
+        y: 0.15,
+        theta: 0.0,
+    };
+    let mut state = protocol::RobotState::default();
+    state.line.flags = LINE_LOST;
+    model.apply(&StateUpdated {
+        robot_id: 1,
+        at: tokio::time::Instant::now(),
+        state,
+        reduced: false,
+        pose: start,
+    });
+    let lie = Felt {
+        moved_m: 65.535,
+        along_m: 32.767,
+        left_m: 0.0,
+        since_ms: 0,
+    };
+    assert_eq!(model.bumped(1, lie, tokio::time::Instant::now()), None);
+    let p = model.views()[0].pose;
+    assert!(
+        (p.x - start.x).hypot(p.y - start.y) <= BUMP_CREDIBLE_M + 1e-9,
+        "{p:?}"
+    );
+}

@@ -319,6 +319,9 @@ impl WorldModel {
             left_m,
             since_ms,
         } = felt;
+        // The robot's word is bounded by what a bump can be: a robot reporting metres (a broken
+        // accelerometer, a lying peer) moves the estimate no farther than a credible bump.
+        let along_m = along_m.clamp(-BUMP_CREDIBLE_M, BUMP_CREDIBLE_M);
         let mut e = self.estimates.get_mut(&id)?;
         // A robot that has not reported yet has no estimate to widen.
         let odometry = e.last_odometry?;
