@@ -39,6 +39,8 @@ const STOPPED_MPS: f32 = 0.005;
 /// follower that lost the tape stands still).
 const CREEP_M: f32 = 0.03;
 const FOLLOW_LIMIT: Duration = Duration::from_secs(4);
+/// A search that starts in a junction zone first drives this far beyond the zone's edge.
+const LEAVE_MARGIN_M: f64 = 0.015;
 /// A move the safety check holds is tried again this much later, at most this many times.
 const RETRY_AFTER: Duration = Duration::from_millis(500);
 const MAX_RETRIES: u32 = 20;
@@ -87,6 +89,9 @@ pub struct Relocaliser {
     heading: f64,
     /// How far to each side the sweep goes.
     reach_m: f64,
+    /// Where the sweep starts being away from a junction zone the robot was lost in: the unit
+    /// direction along the tape away from the junction and how far to drive along it first.
+    leave: Option<(Vector2<f64>, f64)>,
     /// Where the robot's centre may go without its footprint leaving the arena: lower and upper
     /// corners.
     room: ([f64; 2], [f64; 2]),
@@ -102,18 +107,39 @@ pub struct Relocaliser {
 
 impl Relocaliser {
     /// Starts the routine for a robot lost at `view` whose centre may move within `room` (lower
-    /// and upper corners); the first action is the stop.
+    /// and upper corners), on a track with these `junctions` (centre and radius of the zones
+    /// where the tape cannot fix a robot); the first action is the stop.
     pub fn start(
         view: &RobotView,
         track: &Track,
+        junctions: &[(Point2<f64>, f64)],
         room: ([f64; 2], [f64; 2]),
         now: Instant,
     ) -> (Self, Action) {
         let centre = Point2::new(view.pose.x, view.pose.y);
-        let tape = track.nearest(centre).map_or(
-            Vector2::new(view.pose.theta.cos(), view.pose.theta.sin()),
-            |n| n.tangent,
-        );
+        let heading = Vector2::new(view.pose.theta.cos(), view.pose.theta.sin());
+        let tape = track.nearest(centre).map_or(heading, |n| n.tangent);
+        // Inside a junction zone no sighting is taken as a fix (its tapes run too close to
+        // tell apart), so a sweep there finds nothing however often it is tried: the search
+        // first drives along the tape out of the zone, away from the junction.
+        let leave = junctions
+            .iter()
+            .find(|(j, r)| (centre - j).norm() < r + LEAVE_MARGIN_M)
+            .map(|(j, r)| {
+                let from = centre - j;
+                let away = if from.norm() < 1e-6 {
+                    if tape.dot(&heading) >= 0.0 {
+                        tape
+                    } else {
+                        -tape
+                    }
+                } else if tape.dot(&from) >= 0.0 {
+                    tape
+                } else {
+                    -tape
+                };
+                (away, (r + LEAVE_MARGIN_M - from.dot(&away)).max(0.0))
+            });
         let reach_m = (3.0 * view.uncertainty.position_m).clamp(0.04, RELOCATE_M);
         (
             Self {
@@ -121,6 +147,7 @@ impl Relocaliser {
                 tape,
                 heading: view.pose.theta,
                 reach_m,
+                leave,
                 room,
                 step: Step::Braking {
                     since: now,
@@ -251,15 +278,28 @@ impl Relocaliser {
     fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
         let across = Vector2::new(-self.tape.y, self.tape.x);
         let reach = self.reach_m + LINE_SENSOR_AHEAD_M;
-        let at = [pose.x, pose.y];
+        let mut moves = Vec::new();
+        let mut at = [pose.x, pose.y];
+        let mut theta = pose.theta;
+        if let Some((away, by)) = self.leave {
+            let by = by.min(room_along(at, [away.x, away.y], self.room));
+            if by > 0.002 {
+                let facing = away.y.atan2(away.x);
+                moves.push(turn_to(theta, facing));
+                moves.push(straight(by as f32));
+                theta = facing;
+                at = [at[0] + away.x * by, at[1] + away.y * by];
+            }
+        }
         let out = reach.min(room_along(at, [across.x, across.y], self.room)) as f32;
         let back = reach.min(room_along(at, [-across.x, -across.y], self.room)) as f32;
-        vec![
-            turn_to(pose.theta, across.y.atan2(across.x)),
+        moves.extend([
+            turn_to(theta, across.y.atan2(across.x)),
             straight(out),
             straight(-(out + back)),
             straight(back),
-        ]
+        ]);
+        moves
     }
 
     /// Drive the centre onto the tape the model now places the robot beside, face along it the
@@ -352,7 +392,7 @@ mod tests {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let lost = view(0.3, 0.225, 0.1);
-        let (mut r, first) = Relocaliser::start(&lost, &world.track, ROOM, now);
+        let (mut r, first) = Relocaliser::start(&lost, &world.track, &[], ROOM, now);
         assert_eq!(first, Action::Stop);
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("a stopped robot sweeps at once");
@@ -408,7 +448,7 @@ mod tests {
         // Lost beside the tape at y = 0.2, its centre allowed no lower than y = 0.18.
         let lost = view(0.3, 0.205, 0.0);
         let room = ([0.05, 0.18], [1.0, 1.0]);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, room, now);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], room, now);
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("sweep");
         };
@@ -430,7 +470,7 @@ mod tests {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let lost = view(0.3, 0.3, 0.0);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, ROOM, now);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], ROOM, now);
         let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
             panic!("sweep");
         };
@@ -441,5 +481,49 @@ mod tests {
             r.move_finished(true);
         }
         assert!(r.gave_up());
+    }
+
+    /// Lost at a fork, where no sighting fixes a robot: the search first drives along the tape
+    /// out of the junction's zone, then sweeps across the tape there.
+    #[test]
+    fn a_search_that_starts_in_a_junction_zone_first_leaves_it() {
+        let world = presets::preset("junction").unwrap();
+        let model = crate::WorldModel::new(std::sync::Arc::new(world.track.clone()));
+        let fork = model
+            .junctions()
+            .iter()
+            .copied()
+            .find(|(j, _)| (j.x - 0.45).abs() < 1e-6 && (j.y - 0.15).abs() < 1e-6)
+            .expect("the fork F is a junction");
+        let now = Instant::now();
+        // 1.5 cm east of the fork, facing west-south-west.
+        let lost = view(0.465, 0.15, 3.6);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, model.junctions(), ROOM, now);
+        let Some(Action::Moves(moves)) = r.poll(&lost, &world.track, now) else {
+            panic!("a stopped robot searches at once");
+        };
+        // Faces east, away from the fork, and drives out of its zone before it sweeps.
+        let MoveCommand::Rotate { angle_deg, .. } = moves[0] else {
+            panic!("{moves:?}");
+        };
+        let facing = wrap_angle(3.6 + f64::from(angle_deg).to_radians());
+        assert!(facing.abs() < 0.01, "{facing}");
+        let MoveCommand::Straight { distance_m, .. } = moves[1] else {
+            panic!("{moves:?}");
+        };
+        let end = 0.465 + f64::from(distance_m);
+        assert!(end - 0.45 > fork.1, "ends at {end}, zone {:?}", fork);
+        assert!(end - 0.45 < fork.1 + 0.03, "ends at {end}, zone {:?}", fork);
+        assert!(
+            matches!(moves[2], MoveCommand::Rotate { .. }) && moves.len() == 6,
+            "{moves:?}"
+        );
+        // Away from every junction, the sweep starts where the robot stands.
+        let plain = view(0.65, 0.15, 0.0);
+        let (mut r, _) = Relocaliser::start(&plain, &world.track, model.junctions(), ROOM, now);
+        let Some(Action::Moves(moves)) = r.poll(&plain, &world.track, now) else {
+            panic!("a stopped robot searches at once");
+        };
+        assert_eq!(moves.len(), 4, "{moves:?}");
     }
 }

@@ -199,6 +199,9 @@ pub(super) async fn sample_model_errors(
                     model = ?(v.pose.x, v.pose.y, v.pose.theta),
                     odometry = ?(v.odometry.x, v.odometry.y, v.odometry.theta),
                     line_um = { v.state.line.position_um },
+                    line_flags = { v.state.line.flags },
+                    sigma_mm = v.uncertainty.position_m * 1e3,
+                    localisation = ?v.localisation,
                 );
             }
         }

@@ -23,7 +23,13 @@ impl Supervisor {
             + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
         let (w, h) = self.arena;
         let room = ([clear, clear], [w - clear, h - clear]);
-        let (routine, first) = Relocaliser::start(&view, self.model.track(), room, Instant::now());
+        let (routine, first) = Relocaliser::start(
+            &view,
+            self.model.track(),
+            self.model.junctions(),
+            room,
+            Instant::now(),
+        );
         self.relocalising.insert(id, routine);
         self.act(id, first, &world);
         let reach = LOST_REACH_M + self.safety.reach(&view);

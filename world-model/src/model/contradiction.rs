@@ -81,6 +81,8 @@ impl WorldModel {
             widen(&mut e.cov, moved_m, turn);
         }
         e.no_tape_m = 0.0;
+        e.no_tape_plain_m = 0.0;
+        e.no_tape_plain_at_rest = std::time::Duration::ZERO;
         e.no_tape_at_rest = std::time::Duration::ZERO;
         let right = Vector2::new(heading.y, -heading.x);
         let seen = sensor + right * (f64::from(position_um) * 1e-6);
@@ -146,6 +148,44 @@ impl WorldModel {
         } else {
             0.0
         };
+        // An estimate grown uncertain is never squarely on a tape, and so could drive on
+        // unchallenged however long its sensor sees nothing: where its mean has the sensor
+        // within half that of a tape's centre, the spots reach far enough either side that
+        // seeing none over a longer run means the mean is off by more than a centimetre.
+        // In a junction zone, where the tape along the heading is not told apart from its
+        // neighbours, any tape plainly under the sensor's middle will do: robots wait on the
+        // nodes there.
+        let plainly = match tape {
+            Some(t) => t.distance_m < SQUARELY_M / 2.0,
+            None => {
+                self.in_junction(sensor)
+                    && self.track.nearest(sensor).is_some_and(|n| {
+                        n.distance_m < SQUARELY_M / 2.0 && n.tangent.dot(&heading).abs() > 0.5
+                    })
+            }
+        };
+        e.no_tape_plain_m = if plainly {
+            e.no_tape_plain_m + driven.abs()
+        } else {
+            0.0
+        };
+        e.no_tape_plain_at_rest = match at_rest {
+            Some(dt) if plainly => e.no_tape_plain_at_rest + dt,
+            _ => std::time::Duration::ZERO,
+        };
+        if e.no_tape_plain_m > PLAIN_CONTRADICTION_M {
+            return Some(format!(
+                "its line sensor saw no tape for {:.0} mm where the model's estimate has it on one",
+                e.no_tape_plain_m * 1e3
+            ));
+        }
+        if e.no_tape_plain_at_rest > 2 * CONTRADICTION_AT_REST {
+            return Some(format!(
+                "its line sensor saw no tape for {:.1} s standing where the model's estimate has \
+                 it on one",
+                e.no_tape_plain_at_rest.as_secs_f64()
+            ));
+        }
         // Time counts only while the robot stands: one that drives is judged by distance.
         // The row of spots stands across the heading: along it the tape is farther than across
         // the tape by 1/cos. One spot must be over the tape by a margin.

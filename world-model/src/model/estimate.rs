@@ -48,6 +48,11 @@ pub(super) struct Estimate {
     pub(super) cov: Matrix3<f64>,
     /// Travel with no tape under the sensor where the model puts it squarely on one.
     pub(super) no_tape_m: f64,
+    /// Travel with no tape under the sensor where the estimate's mean puts it plainly on one,
+    /// however uncertain the estimate.
+    pub(super) no_tape_plain_m: f64,
+    /// Time standing still in that state.
+    pub(super) no_tape_plain_at_rest: std::time::Duration,
     /// Time standing still in that state.
     pub(super) no_tape_at_rest: std::time::Duration,
     /// When the previous update was made.
@@ -88,6 +93,8 @@ impl Default for Estimate {
                 START_SIGMA_RAD * START_SIGMA_RAD,
             )),
             no_tape_m: 0.0,
+            no_tape_plain_m: 0.0,
+            no_tape_plain_at_rest: std::time::Duration::ZERO,
             no_tape_at_rest: std::time::Duration::ZERO,
             last_at: None,
             stray_tape_m: 0.0,

@@ -62,6 +62,9 @@ const ALIGNED_RAD: f64 = 20.0 * PI / 180.0;
 const JUNCTION_CLEAR_M: f64 = 0.03;
 /// Branches closer than this (the sensor's half-width plus a tape) look like one tape.
 const BRANCHES_APART_M: f64 = 0.025;
+/// Two tapes' nearest points to a sighting this far apart are different tapes, not one tape
+/// running on through a node.
+const AMBIGUOUS_APART_M: f64 = 0.01;
 /// Share of the lateral error taken per state update (50 Hz: a time constant of about 0.1 s).
 const LATERAL_GAIN: f64 = 0.2;
 /// Share of the heading error taken per state update; lower than the lateral gain because the
@@ -88,6 +91,9 @@ const START_SIGMA_RAD: f64 = 0.0175;
 /// Contradictions: this much travel with the sensor seeing no tape where the model puts it
 /// squarely on one, or seeing tape where the model has none, and the robot is lost.
 const CONTRADICTION_M: f64 = 0.025;
+/// Travel with no tape seen where the estimate's mean has the sensor plainly over one, however
+/// uncertain it is, before the model is contradicted.
+const PLAIN_CONTRADICTION_M: f64 = 2.0 * CONTRADICTION_M;
 /// And this long standing still: a robot knocked off the tape at rest never drives the distance.
 const CONTRADICTION_AT_REST: std::time::Duration = std::time::Duration::from_millis(500);
 /// A robot standing still whose line reading moves this far from what it read when it stopped,
@@ -122,12 +128,9 @@ const LOST_FLOOR_RAD: f64 = 15.0 * PI / 180.0;
 /// [`LOST_FLOOR_M`]; its heading this uncertain: a hand turns it up to 20° as it shoves.
 const BUMP_MARGIN: f64 = 1.5;
 const BUMP_MAX_M: f64 = 0.9 * LOST_SIGMA_M;
-/// The most a reported bump is believed to have moved a robot along its heading: random kicks
-/// draw up to 3 cm, and the robot's integral has read 56 mm for one of them.
+/// The most a reported bump is believed to have moved a robot: random kicks draw up to 3 cm,
+/// and the robot's integral has read 56 mm for one of them.
 const BUMP_CREDIBLE_M: f64 = 0.1;
-/// A bump that moved the robot less than this leaves it tracked, its heading this uncertain.
-const BUMP_LOST_M: f64 = 0.015;
-const SMALL_BUMP_TURN_RAD: f64 = 10.0 * PI / 180.0;
 /// The estimate a bump goes back to is at least this older than the jolt's start, which the
 /// robot dates by the main loop that crossed the threshold.
 const BUMP_BEFORE_MS: u32 = 10;
@@ -214,6 +217,12 @@ impl WorldModel {
     /// The track the model places robots on.
     pub fn track(&self) -> &Arc<Track> {
         &self.track
+    }
+
+    /// The junction zones (centre, radius): there the tapes run too close together for a
+    /// sighting to say which one the sensor sees.
+    pub fn junctions(&self) -> &[(Point2<f64>, f64)] {
+        &self.junctions
     }
 
     /// The map itself, for readers on other threads.

@@ -48,6 +48,12 @@ impl WorldModel {
         }
         let normal = Vector2::new(-at.tangent.y, at.tangent.x);
         let innovation = normal.dot(&(at.point - seen));
+        let s = (RowVector3::new(normal.x, normal.y, 0.0)
+            * cov
+            * Vector3::new(normal.x, normal.y, 0.0))[(0, 0)];
+        if self.ambiguous(seen, &at, (3.0 * s.sqrt()).clamp(MATCH_M, MATCH_MAX_M)) {
+            return None;
+        }
         // d(seen)/dθ is the arm turned by 90°.
         let h = RowVector3::new(normal.x, normal.y, normal.dot(&Vector2::new(-arm.y, arm.x)));
         let s = (h * cov * h.transpose())[(0, 0)] + R_LATERAL_M2;
@@ -67,6 +73,23 @@ impl WorldModel {
             },
             cov,
         ))
+    }
+
+    /// Whether a tape other than `nearest` (the one nearest the sighting `seen`) also lies within
+    /// `gate_m` of it: then the sighting cannot say which one the sensor sees. Outside junction
+    /// zones this happens only to an uncertain estimate whose gate spans two tapes, as beside a
+    /// siding where it leaves the main line; taking the nearer there once moved an estimate
+    /// 3 cm onto the wrong tape and left it confident.
+    pub(super) fn ambiguous(
+        &self,
+        seen: Point2<f64>,
+        nearest: &world::track::TrackPoint,
+        gate_m: f64,
+    ) -> bool {
+        (0..self.track.edges().len())
+            .filter(|&i| i != nearest.edge)
+            .map(|i| self.track.nearest_on(i, seen))
+            .any(|q| q.distance_m <= gate_m && (q.point - nearest.point).norm() > AMBIGUOUS_APART_M)
     }
 
     /// Whether a point on an edge `len` long is clear of where its tape ends or meets others:
@@ -124,7 +147,10 @@ impl WorldModel {
         let sensor = centre + heading * LINE_SENSOR_AHEAD_M;
         let seen = sensor + right * (f64::from(position_um) * 1e-6);
         let at_seen = self.track.nearest(seen)?;
-        if at_seen.distance_m > gate_m || self.in_junction(at_seen.point) {
+        if at_seen.distance_m > gate_m
+            || self.in_junction(at_seen.point)
+            || self.ambiguous(seen, &at_seen, gate_m)
+        {
             return None;
         }
         let along = at_seen.tangent.dot(&heading);

@@ -304,14 +304,16 @@ pub struct Felt {
 
 impl WorldModel {
     /// Robot `id` felt itself moved by something other than its wheels from its uptime
-    /// `since_ms` on, by about `moved_m` (the robot's own estimate). Where tape is within reach,
-    /// wheels turned while it stood are left to the line reading at rest; a jolt along the
-    /// heading (a slip under a load, a push from ahead) only gives the odometry back its error,
-    /// and the robot stays tracked; any other bump takes the estimate back to where it stood
-    /// before the jolt and widens it to cover the move and a turn, and from 15 mm on the robot
-    /// is lost until the tape fixes it again. Where no tape is within reach it is only widened:
-    /// nothing could fix it there. Returns why the robot is lost, for the supervisor to stop and
-    /// re-localise it; `None` when it is not, or the model has no estimate of it yet.
+    /// `since_ms` on, by about `moved_m` (the robot's own estimate). Where tape is within reach
+    /// the estimate goes back to where it stood before the jolt, is widened to cover the move
+    /// and a turn the accelerometer cannot feel, and the robot is lost until the tape fixes it
+    /// again: a hand that shifts a robot also turns it, and a turn is what makes a confident
+    /// model wrong by decimetres a few seconds later. Wheels turned while it stood on a plain
+    /// stretch of tape are left to the line reading at rest, which sees a shift or turn there;
+    /// at a junction or a tape's end it cannot, and the robot is lost. Where no tape is within
+    /// reach it is only widened: nothing could fix it there. Returns why the robot is lost, for
+    /// the supervisor to stop and re-localise it; `None` when it is not, or the model has no
+    /// estimate of it yet.
     pub fn bumped(&self, id: u16, felt: Felt, at: tokio::time::Instant) -> Option<String> {
         let Felt {
             moved_m,
@@ -320,41 +322,32 @@ impl WorldModel {
             since_ms,
         } = felt;
         // The robot's word is bounded by what a bump can be: a robot reporting metres (a broken
-        // accelerometer, a lying peer) moves the estimate no farther than a credible bump.
-        let along_m = along_m.clamp(-BUMP_CREDIBLE_M, BUMP_CREDIBLE_M);
+        // accelerometer, a lying peer) widens the estimate no farther than a credible bump.
+        let moved_m = moved_m.clamp(0.0, BUMP_CREDIBLE_M);
         let mut e = self.estimates.get_mut(&id)?;
         // A robot that has not reported yet has no estimate to widen.
         let odometry = e.last_odometry?;
         let here = e.recent.back().map(|&(_, p)| p)?;
+        let centre = Point2::new(here.x, here.y);
         let tape_near = self
             .track
-            .nearest(Point2::new(here.x, here.y))
+            .nearest(centre)
             .is_some_and(|n| n.distance_m < RELOCATE_M + BUMP_MAX_M);
-        if tape_near && along_m == 0.0 && left_m == 0.0 {
-            // Only its wheels turned while it stood: the odometry counted them already, and on
-            // a tape the line reading's own rule (`displaced_at_rest`) judges the move.
-            return None;
-        }
-        let lost = tape_near && !(moved_m > 0.0 && moved_m < BUMP_LOST_M && e.lost.is_none());
-        let mut pose = None;
-        // Only where tape can check it: on a bare floor a jolt's integral is the one estimate
-        // of the move there is, and the wheels' count is no worse.
-        if tape_near && moved_m > 0.0 && left_m.abs() <= along_m.abs() / 2.0 {
-            // The body went `along_m` farther than its wheels say: the odometry's error, given
-            // back, uncertain by half of it along the heading. No move across the heading,
-            // which the odometry cannot see, so the robot is no more lost than before.
+        let wheels_only = along_m == 0.0 && left_m == 0.0;
+        if tape_near && wheels_only {
             let (s, c) = here.theta.sin_cos();
-            let back = Pose {
-                x: here.x + along_m * c,
-                y: here.y + along_m * s,
-                theta: here.theta,
-            };
-            e.correction = Correction::between(odometry, back);
-            let g = Vector3::new(c, s, 0.0);
-            e.cov += g * g.transpose() * (along_m / 2.0).powi(2);
-            drop(e);
-            self.show_bump(id, Some(back), false);
-            return None;
+            let sensor = centre + Vector2::new(c, s) * LINE_SENSOR_AHEAD_M;
+            let plain = !self.in_junction(sensor)
+                && self
+                    .track
+                    .nearest(sensor)
+                    .is_some_and(|n| self.clear_of_ends(&n, self.track.edge_length(n.edge)));
+            // Only its wheels turned while it stood: the odometry counted them already, and on
+            // a plain stretch of tape the line reading's own rule (`displaced_at_rest`) judges
+            // the move.
+            if plain {
+                return None;
+            }
         }
         if !tape_near {
             // It drives on, as uncertain as the move made it; the others keep that much
@@ -364,41 +357,42 @@ impl WorldModel {
                 (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
                 BUMP_TURN_RAD,
             );
-        } else {
-            if lost {
-                if e.lost.is_none() {
-                    e.stats.lost_episodes += 1;
-                }
-                start_lost(&mut e, at);
-            }
-            // Back to where the estimate stood before the jolt began: what the odometry counted
-            // since is the dragged wheels', not travel.
-            if let Some(&(_, before)) = e
-                .recent
-                .iter()
-                .rev()
-                .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
-            {
-                e.correction = Correction::between(odometry, before);
-                pose = Some(before);
-            }
-            // The felt move misses what the robot could not feel (a turn about its centre, the
-            // start of the jolt). A lost robot stays below the lost limit: once the tape fixes
-            // it across, along the tape it stays this uncertain until a mark, and beyond the
-            // limit it would be lost again at once.
-            let (reach, turn) = if lost {
-                (
-                    (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
-                    BUMP_TURN_RAD,
-                )
-            } else {
-                (BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD)
-            };
-            widen(&mut e.cov, reach, turn);
+            drop(e);
+            self.show_bump(id, None, false);
+            return None;
         }
+        if e.lost.is_none() {
+            e.stats.lost_episodes += 1;
+        }
+        start_lost(&mut e, at);
+        // Back to where the estimate stood before the jolt began: what the odometry counted
+        // since is the dragged wheels', not travel.
+        let mut pose = None;
+        if let Some(&(_, before)) = e
+            .recent
+            .iter()
+            .rev()
+            .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
+        {
+            e.correction = Correction::between(odometry, before);
+            pose = Some(before);
+        }
+        // The felt move misses what the robot could not feel (a turn about its centre, the
+        // start of the jolt). It stays below the lost limit: once the tape fixes it across,
+        // along the tape it stays this uncertain until a mark, and beyond the limit it would
+        // be lost again at once.
+        widen(
+            &mut e.cov,
+            (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
+            BUMP_TURN_RAD,
+        );
         drop(e);
-        self.show_bump(id, pose, lost);
-        lost.then(|| format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3))
+        self.show_bump(id, pose, true);
+        Some(if wheels_only {
+            "its wheels turned while it stood where its line sensor cannot tell a shift".into()
+        } else {
+            format!("it felt a bump that moved it about {:.0} mm", moved_m * 1e3)
+        })
     }
 
     /// Writes what a bump did to robot `id`'s estimate into its view: its uncertainty, its pose
@@ -434,6 +428,8 @@ fn start_lost(e: &mut Estimate, at: tokio::time::Instant) {
         fixed: false,
     });
     e.no_tape_m = 0.0;
+    e.no_tape_plain_m = 0.0;
+    e.no_tape_plain_at_rest = std::time::Duration::ZERO;
     e.no_tape_at_rest = std::time::Duration::ZERO;
     e.stray_tape_m = 0.0;
     e.rest_line = None;
