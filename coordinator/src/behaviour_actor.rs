@@ -156,6 +156,7 @@ pub fn event_from_robot(kind: &RobotEventKind) -> Event {
         RobotEventKind::Bump(b) => Event::Bumped {
             moved_m: f64::from(b.moved_mm) * 1e-3,
         },
+        RobotEventKind::Reflex(r) => Event::Reflexed { side: side(r.side) },
         RobotEventKind::Refused(n) => Event::Refused {
             packet_type: n.packet_type,
             reason: NackReason::try_from(n.reason).ok(),

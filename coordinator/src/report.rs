@@ -202,6 +202,8 @@ pub struct Report {
     pub encounters: usize,
     /// Behaviour restarts.
     pub restarts: u32,
+    /// Drives the robots' proximity reflexes stopped.
+    pub reflexes: u32,
     /// Experiment time on the experiment's clock (simulated when simulating).
     pub experiment_time: Duration,
     /// Wall-clock time of the whole run.
@@ -296,6 +298,7 @@ struct JsonReport<'a> {
     links: &'a [crate::supervisor::LinkRecord],
     encounters: usize,
     restarts: u32,
+    reflexes: u32,
     experiment_time_s: f64,
     wall_time_s: f64,
     peak_memory_mb: Option<f64>,
@@ -477,6 +480,7 @@ impl Report {
             links: &self.links,
             encounters: self.encounters,
             restarts: self.restarts,
+            reflexes: self.reflexes,
             experiment_time_s: self.experiment_time.as_secs_f64(),
             wall_time_s: self.wall_time.as_secs_f64(),
             peak_memory_mb: self.peak_memory_bytes.map(|b| b as f64 / 1e6),
@@ -614,8 +618,8 @@ impl Report {
         )?;
         writeln!(
             f,
-            "  encounters: {}; behaviour restarts: {}",
-            self.encounters, self.restarts
+            "  encounters: {}; behaviour restarts: {}; drives stopped by the proximity reflex: {}",
+            self.encounters, self.restarts, self.reflexes
         )?;
         if !self.held_intents.is_empty() {
             writeln!(
@@ -675,6 +679,7 @@ mod tests {
             links: Vec::new(),
             encounters: 0,
             restarts: 0,
+            reflexes: 0,
             experiment_time: Duration::from_secs(10),
             wall_time: Duration::from_secs(1),
             peak_memory_bytes: Some(50_000_000),

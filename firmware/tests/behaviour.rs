@@ -499,3 +499,105 @@ fn a_move_never_drives_a_wheel_backwards_against_its_counted_direction() {
         );
     }
 }
+
+/// Our own light coming back on `side` at power `power`: a surface that close.
+fn reflection(r: &mut MockRobot, side: Side, power: u8) {
+    let own = r.fw.robot_id();
+    let frame = IrFrame {
+        robot_id: own,
+        led: 0,
+        power,
+        message: 0,
+    };
+    r.fw.on_ir_frame(r.now, side, frame);
+}
+
+#[test]
+fn the_reflex_stops_a_drive_into_something_close_and_lets_the_robot_turn_away() {
+    let mut r = robot();
+    assert_eq!(r.fw.settings().reflex.power_level, 1, "on by default");
+    r.send(straight(0.5, 0.1, 1));
+    r.send(straight(0.5, 0.1, 2));
+    run_alive(&mut r, Duration::from_millis(300), |_| false);
+    let before = r.fw.board().pose;
+    assert!(before.x > 0.005, "it drives: {before:?}");
+    // Something within the weakest power's reach ahead.
+    reflection(&mut r, Side::Front, 1);
+    let mut blocked = Vec::new();
+    let mut reflex = None;
+    run_alive(&mut r, Duration::from_millis(200), |p| {
+        match p {
+            AnyPacket::MoveFinished(m) => blocked.push((m.move_id, m.outcome)),
+            AnyPacket::Reflex(x) => reflex = Some(*x),
+            _ => {}
+        }
+        false
+    });
+    let b = MoveOutcome::Blocked as u8;
+    assert_eq!(
+        blocked,
+        vec![(1, b), (2, b)],
+        "both queued moves end blocked"
+    );
+    let x = reflex.expect("the reflex is reported");
+    assert_eq!((x.side, x.power_level), (Side::Front as u8, 1));
+    assert_eq!(r.fw.board().pwm, (0, 0));
+    let stopped = r.fw.board().pose;
+    assert!(
+        stopped.x - before.x < 0.01,
+        "it stopped within a centimetre: {before:?} -> {stopped:?}"
+    );
+    // Still close ahead: a turn on the spot and a move backwards go on, a move forwards does not.
+    reflection(&mut r, Side::Front, 1);
+    r.send(rotate(90.0, 0.05, 3));
+    r.send(straight(-0.02, 0.05, 4));
+    let mut done = Vec::new();
+    run_alive(&mut r, Duration::from_millis(3000), |p| {
+        if let AnyPacket::MoveFinished(m) = p {
+            done.push((m.move_id, m.outcome));
+        }
+        done.len() == 2
+    });
+    let c = MoveOutcome::Completed as u8;
+    assert_eq!(done, vec![(3, c), (4, c)]);
+    reflection(&mut r, Side::Front, 1);
+    r.send(straight(0.1, 0.1, 5));
+    let mut fifth = None;
+    run_alive(&mut r, Duration::from_millis(300), |p| {
+        if let AnyPacket::MoveFinished(m) = p {
+            fifth = Some(m.outcome);
+        }
+        fifth.is_some()
+    });
+    assert_eq!(fifth, Some(b));
+}
+
+#[test]
+fn a_robot_whose_reflex_is_off_closes_in_on_what_it_sees() {
+    let mut r = robot();
+    let (offset, _) = Settings::field("reflex.power_level").expect("a setting");
+    r.send(SettingsUpdate::new(offset as u16, &[0]).expect("fits"));
+    run_alive(&mut r, Duration::from_millis(20), |_| false);
+    assert_eq!(r.fw.settings().reflex.power_level, 0);
+    r.send(straight(0.05, 0.1, 1));
+    let mut outcome = None;
+    let mut reflexes = 0;
+    // A box held against the front the whole way: a push.
+    for _ in 0..40 {
+        reflection(&mut r, Side::Front, 1);
+        keep_alive(&mut r);
+        r.run_until(Duration::from_millis(50), |p| {
+            match p {
+                AnyPacket::MoveFinished(m) => outcome = Some(m.outcome),
+                AnyPacket::Reflex(_) => reflexes += 1,
+                _ => {}
+            }
+            false
+        });
+        if outcome.is_some() {
+            break;
+        }
+    }
+    assert_eq!(outcome, Some(MoveOutcome::Completed as u8));
+    assert_eq!(reflexes, 0);
+}

@@ -99,6 +99,12 @@ pub enum Event {
         /// How far the bump moved it, as the robot estimated, metres.
         moved_m: f64,
     },
+    /// The robot's proximity reflex stopped it short of something close on `side` (its moves
+    /// ended `Blocked`).
+    Reflexed {
+        /// The receiver that saw it.
+        side: Side,
+    },
     /// The robot refused a command.
     Refused {
         /// The refused packet's type code.

@@ -55,6 +55,15 @@ pub enum Intent {
         /// Message.
         message: u16,
     },
+    /// Set the robot's proximity reflex: it stops any drive towards a surface that returns its
+    /// own light at this power level or weaker (1, the default: within about 15 mm); 0 turns it
+    /// off, for a behaviour that must close in (pushing a box).
+    Reflex {
+        /// Robot id.
+        robot: u16,
+        /// Power level, 0 off.
+        power_level: u8,
+    },
 }
 
 impl Intent {
@@ -67,7 +76,8 @@ impl Intent {
             | Intent::ClearQueue { robot }
             | Intent::Stop { robot }
             | Intent::Led { robot, .. }
-            | Intent::IrMessage { robot, .. } => robot,
+            | Intent::IrMessage { robot, .. }
+            | Intent::Reflex { robot, .. } => robot,
         }
     }
 }

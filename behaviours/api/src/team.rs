@@ -198,7 +198,10 @@ impl Team {
                         m.following = speed;
                     }
                     Intent::WheelSpeeds { .. } | Intent::Stop { .. } => m.following = None,
-                    Intent::ClearQueue { .. } | Intent::Led { .. } | Intent::IrMessage { .. } => {}
+                    Intent::ClearQueue { .. }
+                    | Intent::Led { .. }
+                    | Intent::IrMessage { .. }
+                    | Intent::Reflex { .. } => {}
                 }
                 true
             })

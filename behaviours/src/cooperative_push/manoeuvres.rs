@@ -26,6 +26,14 @@ impl CooperativePush {
         Vec::new()
     }
 
+    /// Every pusher's proximity reflex set to `power_level` (0 off).
+    pub(super) fn reflexes(&self, power_level: u8) -> Vec<Intent> {
+        self.bots
+            .keys()
+            .map(|&robot| Intent::Reflex { robot, power_level })
+            .collect()
+    }
+
     /// The route's moves, tagged with the phase they belong to.
     pub(super) fn send(&self, id: u16, route: Manoeuvre) -> Vec<Intent> {
         Intent::moves(id, route.moves, self.phase as u32)

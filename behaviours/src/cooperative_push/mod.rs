@@ -5,6 +5,11 @@
 //! length. They back onto the tape one after the other and follow it again. A box still found on
 //! the tape afterwards means the push failed; it is tried again, at most twice.
 //!
+//! A disturbance around the box (a robot lost and found again, a move the safety check held, an
+//! aborted manoeuvre, a push the box did not give way to) does not end the run: the team stops,
+//! drives back onto the tape behind the box one robot after the other, and finds it again, at
+//! most three times; then the run fails with what went wrong.
+//!
 //! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
 //! robot ahead in the world model creeps, and stops at the first reflection at the weakest power
 //! level (within 15 mm); where the box is comes from the finder's pose and that reach.
@@ -30,10 +35,12 @@ use behaviour_api::moves::Manoeuvre;
 use behaviour_api::team::{HeldPolicy, Team};
 use behaviour_api::track_loop::TrackLoop;
 use behaviour_api::{
-    params, Behaviour, BehaviourConfig, Intent, Register, RobotView, Verdict, WorldSnapshot,
+    params, Behaviour, BehaviourConfig, Intent, Localisation, LocalisationEvent, Register,
+    RobotView, Verdict, WorldSnapshot,
 };
 
 mod manoeuvres;
+mod regroup;
 mod step;
 
 /// Half the body length, metres.
@@ -75,6 +82,8 @@ const CREEP_MPS: f32 = 0.03;
 /// Speed of manoeuvres off the tape, and of the push.
 const MANOEUVRE_MPS: f32 = 0.08;
 const PUSH_MPS: f32 = 0.05;
+/// The robots' own proximity reflex away from the box: a surface within about 15 mm.
+const REFLEX_ON: u8 = 1;
 /// A phase that takes longer than this has failed.
 const PHASE_LIMIT: Duration = Duration::from_secs(30);
 /// Attempts before giving up.
@@ -100,6 +109,8 @@ enum Phase {
     HelperRejoins,
     /// Both follow the track again.
     Lapping,
+    /// After a disturbance: back onto the tape behind the box, one after the other.
+    Regroup,
 }
 
 /// Where the box is: its estimated centre, the tape's direction there and the push direction.
@@ -158,6 +169,14 @@ pub struct CooperativePush {
     push_time: Option<Duration>,
     odometer: Odometer,
     verdict: Option<Verdict>,
+    /// Regroups so far, why the last one began, the robots sent on their way back in it, and
+    /// when a held route is tried again.
+    regroups: u32,
+    regroup_why: Option<String>,
+    routed: Vec<u16>,
+    retry_at: Option<Duration>,
+    /// Each robot's count of interrupted moves already acted on.
+    interrupts_seen: BTreeMap<u16, u32>,
 }
 
 params! {
@@ -204,6 +223,11 @@ impl Register for CooperativePush {
             push_time: None,
             odometer: Odometer::new(),
             verdict: None,
+            regroups: 0,
+            regroup_why: None,
+            routed: Vec::new(),
+            retry_at: None,
+            interrupts_seen: BTreeMap::new(),
         })
     }
 }

@@ -8,8 +8,11 @@ impl CooperativePush {
     /// the work of the current phase.
     pub(super) fn step(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.odometer.observe(world);
-        if let Some(why) = self.overdue(world, team) {
+        if let Some(why) = self.overdue(world) {
             return self.fail(why);
+        }
+        if let Some(id) = self.aborted(team) {
+            return self.regroup(format!("robot {id}: a manoeuvre was aborted"), world, team);
         }
         let mut out = self.spacing(world, team);
         if matches!(self.phase, Phase::Approach | Phase::Lapping) {
@@ -34,6 +37,7 @@ impl CooperativePush {
             }),
             Phase::Push => self.pushed(world, team),
             Phase::HelperWaits => Ok(self.helper_waits(world)),
+            Phase::Regroup => Ok(self.regrouping(world, team)),
             // The verdict ends the run: the spacing intents of this step are not sent.
             Phase::Lapping => match self.lapping(world) {
                 Ok(true) => return Vec::new(),
@@ -41,6 +45,8 @@ impl CooperativePush {
             },
         };
         match next {
+            // A push the box did not give way to is tried again from the tape behind it.
+            Err(why) if self.phase == Phase::Push => self.regroup(why, world, team),
             Err(why) => self.fail(why),
             Ok(intents) => {
                 out.extend(intents);
@@ -50,10 +56,20 @@ impl CooperativePush {
     }
 
     /// Why the run must stop: a stalled wheel, a phase over its time limit, a robot backing up
-    /// for too long, an aborted manoeuvre.
-    pub(super) fn overdue(&mut self, world: &WorldSnapshot, team: &Team) -> Option<String> {
+    /// for too long, a regroup that does not end.
+    pub(super) fn overdue(&mut self, world: &WorldSnapshot) -> Option<String> {
         if let Some(stall) = self.odometer.stall() {
             return Some(stall.to_string());
+        }
+        if self.phase == Phase::Regroup {
+            // A regroup has its own reason, which the phase limit's message would hide.
+            if world.time.saturating_sub(self.phase_since) > PHASE_LIMIT {
+                return Some(format!(
+                    "the team did not regroup within {:.0} s after: {}",
+                    PHASE_LIMIT.as_secs_f64(),
+                    self.regroup_why.as_deref().unwrap_or("a disturbance")
+                ));
+            }
         }
         let limit = match self.phase {
             // Following is slowed by spacing; three times the lap time at full speed is plenty.
@@ -83,10 +99,22 @@ impl CooperativePush {
         }) {
             return Some(format!("robot {id} backed up without finding the tape"));
         }
-        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
-            return Some(format!("robot {id}: a manoeuvre was aborted"));
-        }
         None
+    }
+
+    /// A robot whose move was aborted (a stop, a lost link, a lost robot) since the last step,
+    /// outside a regroup, which stops robots itself.
+    pub(super) fn aborted(&mut self, team: &Team) -> Option<u16> {
+        let mut found = None;
+        for id in team.ids() {
+            let now = team.interrupted(id);
+            let seen = self.interrupts_seen.entry(id).or_insert(0);
+            if now > *seen && self.phase != Phase::Regroup {
+                found = found.or(Some(id));
+            }
+            *seen = now;
+        }
+        found
     }
 
     /// Spacing while following: never run into the robot ahead.
@@ -146,6 +174,9 @@ impl CooperativePush {
             self.site = Some(site);
             let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
             let id = finder.id;
+            // The slots are 12 mm from the box and the push drives into it: the robots' own
+            // reflexes would stop both; the safety check keeps them apart meanwhile.
+            out.extend(self.reflexes(0));
             out.extend(self.send(id, route));
             self.enter(Phase::FinderToSlot, world);
         }
@@ -179,7 +210,6 @@ impl CooperativePush {
     ) -> Result<Vec<Intent>, String> {
         let mut out = Vec::new();
         if team.all_idle() {
-            self.push_time = Some(world.time.saturating_sub(self.push_started));
             // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
             // over the tape it stood on; wheels that only slipped did not.
             if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
@@ -206,6 +236,8 @@ impl CooperativePush {
                     EVIDENCE_SHARE * sent * 1e3
                 ));
             }
+            self.push_time = Some(world.time.saturating_sub(self.push_started));
+            out.extend(self.reflexes(REFLEX_ON));
             if let Some(f) = self.finder {
                 out.extend(self.start_backing(f));
             }
@@ -359,9 +391,47 @@ impl Behaviour for CooperativePush {
     }
 
     /// A manoeuvre planned around the box is not improvised when the supervisor refuses a step
-    /// of it: the experiment stops with the reason.
+    /// of it: the team regroups behind the box and plans it again from where the robots stand.
     fn held_policy(&self) -> HeldPolicy {
-        HeldPolicy::Fail
+        HeldPolicy::Tell
+    }
+
+    fn on_held(
+        &mut self,
+        intent: &Intent,
+        reason: &str,
+        world: &WorldSnapshot,
+        team: &mut Team,
+    ) -> Vec<Intent> {
+        let Intent::Move { robot, .. } = *intent else {
+            return Vec::new();
+        };
+        // The rest of the manoeuvre may have been approved: the robot must not drive it alone.
+        let stop = vec![Intent::Stop { robot }];
+        if self.phase == Phase::Regroup {
+            self.route_held(robot, world);
+            return stop;
+        }
+        let mut out = stop;
+        out.extend(self.regroup(
+            format!("robot {robot}: the supervisor held back a move: {reason}"),
+            world,
+            team,
+        ));
+        out
+    }
+
+    fn on_localisation(
+        &mut self,
+        robot: u16,
+        event: &LocalisationEvent,
+        world: &WorldSnapshot,
+        team: &mut Team,
+    ) -> Vec<Intent> {
+        match event {
+            LocalisationEvent::Lost { why } => self.robot_lost(robot, why, world, team),
+            LocalisationEvent::Found => Vec::new(),
+        }
     }
 
     fn verdict(&self) -> Option<Verdict> {

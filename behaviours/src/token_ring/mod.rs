@@ -52,6 +52,10 @@ const MANOEUVRE_MPS: f32 = 0.05;
 /// short of a 40 mm box to clear of it with the robot's length and a margin).
 const DETOUR_SIDE: f64 = 0.05;
 const DETOUR_ALONG: f64 = 0.125;
+/// A detour first backs this far from where the robot stopped short of the box: its first leg
+/// then starts beyond the reach of its own proximity reflex (about 15 mm), which would stop a
+/// drive that begins with the box's corner in its front receiver's cone.
+const DETOUR_BACK: f64 = 0.025;
 /// No other robot may be this close to where a detour rejoins the tape when it starts.
 const REJOIN_CLEAR: f64 = 0.15;
 /// How far the front receiver sees a reflection at each power level: half the default reach of

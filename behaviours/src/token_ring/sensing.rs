@@ -165,7 +165,7 @@ impl TokenRing {
             _ => (ahead, p.theta),
         };
         let legs = [
-            Leg::Straight(-0.01),
+            Leg::Straight(-DETOUR_BACK),
             Leg::To {
                 x: p.x + DETOUR_SIDE * rx,
                 y: p.y + DETOUR_SIDE * ry,

@@ -116,6 +116,7 @@ pub(super) fn build_report(
         links: outcome.links,
         encounters: outcome.encounters.len(),
         restarts: outcome.restarts,
+        reflexes: outcome.reflexes,
         experiment_time,
         wall_time,
         peak_memory_bytes: crate::report::peak_memory_bytes(),

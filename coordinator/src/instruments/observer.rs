@@ -326,6 +326,7 @@ fn event_name(kind: &RobotEventKind) -> &'static str {
         RobotEventKind::WatchdogStop => "watchdog_stop",
         RobotEventKind::Overrun(_) => "overrun",
         RobotEventKind::Bump(_) => "bump",
+        RobotEventKind::Reflex(_) => "reflex",
         RobotEventKind::Refused(_) => "refused",
         #[allow(unreachable_patterns)]
         _ => "other",

@@ -156,6 +156,17 @@ impl Handler<RobotEvent> for Supervisor {
                     }
                 }
             }
+            RobotEventKind::Reflex(r) => {
+                // The robot stopped itself: what it drives next is planned again from its pose.
+                self.planned.remove(&e.robot_id);
+                self.reflexes += 1;
+                warn!(
+                    robot = e.robot_id,
+                    side = { r.side },
+                    power_level = { r.power_level },
+                    "the proximity reflex stopped the robot"
+                );
+            }
             RobotEventKind::Connected(_) => {
                 self.note_link(e.robot_id, "connected");
                 if self

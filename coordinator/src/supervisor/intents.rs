@@ -102,7 +102,7 @@ impl Supervisor {
                 plan.ends.push_back((self.next_move, end));
                 plan.sent = now;
             }
-            Intent::Led { .. } | Intent::IrMessage { .. } => {}
+            Intent::Led { .. } | Intent::IrMessage { .. } | Intent::Reflex { .. } => {}
             _ => {
                 self.planned.remove(&id);
             }
@@ -126,6 +126,15 @@ impl Supervisor {
             Intent::Stop { .. } => addr.do_send(Command::Stop),
             Intent::Led { rgb, .. } => addr.do_send(Command::Led(rgb[0], rgb[1], rgb[2])),
             Intent::IrMessage { message, .. } => addr.do_send(Command::IrMessage(message)),
+            Intent::Reflex { power_level, .. } => {
+                let field = protocol::settings::Settings::field("reflex.power_level");
+                if let Some((offset, _)) = field {
+                    addr.do_send(robot_actor::WriteSettings {
+                        offset,
+                        bytes: vec![power_level],
+                    });
+                }
+            }
         }
         true
     }

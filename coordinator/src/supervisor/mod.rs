@@ -53,6 +53,8 @@ pub struct Outcome {
     pub localisation: Vec<(u16, world_model::LocalisationStats)>,
     /// Every robot link lost or (re)connected during the experiment, in order.
     pub links: Vec<LinkRecord>,
+    /// Drives the robots' proximity reflexes stopped.
+    pub reflexes: u32,
 }
 
 /// A robot's link lost, or the robot (re)connected, during an experiment.
@@ -91,6 +93,7 @@ pub struct Supervisor {
     snapshot_period: Duration,
     safety: Safety,
     held: Vec<(Duration, Intent, String)>,
+    reflexes: u32,
     links: Vec<LinkRecord>,
     restarts: u32,
     /// The behaviour's latest figures of its work, for a run stopped before its verdict.
@@ -192,6 +195,7 @@ impl Supervisor {
             snapshot_period,
             safety,
             held: Vec::new(),
+            reflexes: 0,
             progress: Vec::new(),
             links: Vec::new(),
             restarts: 0,
@@ -266,6 +270,7 @@ impl Supervisor {
                 views: self.model.views(),
                 localisation: self.model.localisation_stats(Instant::now()),
                 links: std::mem::take(&mut self.links),
+                reflexes: self.reflexes,
             });
         }
         // The supervisor lives on, keeping the world model current while the robots brake and

@@ -90,6 +90,7 @@ fn arb_packet(t: PacketType) -> BoxedStrategy<AnyPacket> {
         T::LoopOverrun => pod_packet::<LoopOverrun>(),
         T::SettingsSaved => pod_packet::<SettingsSaved>(),
         T::Bump => pod_packet::<Bump>(),
+        T::Reflex => pod_packet::<Reflex>(),
         T::StraightMovement => pod_packet::<StraightMovement>(),
         T::RotationMovement => pod_packet::<RotationMovement>(),
         T::ArcMovement => pod_packet::<ArcMovement>(),

@@ -51,7 +51,8 @@ impl<B: Board> Firmware<B> {
             | AnyPacket::WatchdogStop(_)
             | AnyPacket::LoopOverrun(_)
             | AnyPacket::SettingsSaved(_)
-            | AnyPacket::Bump(_) => {}
+            | AnyPacket::Bump(_)
+            | AnyPacket::Reflex(_) => {}
         }
     }
 

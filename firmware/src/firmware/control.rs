@@ -11,6 +11,10 @@ use crate::locomotion::{tick_m, DriveCommand, LocomotionEvent, WheelInputs};
 use crate::scheduler::{next_period, Channel};
 use crate::time::{Duration, Instant};
 
+/// The sum of the wheels' targets (m/s) or duties beyond which the robot drives forwards or
+/// backwards, for the reflex: a turn on the spot sums to zero.
+const REFLEX_DRIVE: f32 = 1e-3;
+
 impl<B: Board> Firmware<B> {
     pub(super) fn main_loop(&mut self, scheduled: Instant, now: Instant) {
         let period = Duration::from_micros(u64::from(self.settings.scheduler.main_period_us));
@@ -39,11 +43,50 @@ impl<B: Board> Firmware<B> {
             right_mps: self.speed[1].speed(now, tick, timeout),
         };
         let (targets, pwm) = self.control(now, wheels, dt);
+        let (targets, pwm) = if self.reflex(now, targets, pwm) {
+            ((0.0, 0.0), (0.0, 0.0))
+        } else {
+            (targets, pwm)
+        };
         let duty = self.guard_direction(now, wheels, targets, pwm, timeout);
         self.apply_pwm(duty[0], duty[1]);
         self.sample_sensors(now, wheels, targets);
         self.detect_bump(now, wheels, dt, tick);
         self.reflect_state(now);
+    }
+
+    /// The proximity reflex: a drive towards a surface close enough to return the robot's own
+    /// light at `reflex.power_level` or weaker stops, whatever the host believes, and is
+    /// reported. Turning on the spot is no drive towards anything and goes on. Returns whether it
+    /// stopped the robot.
+    fn reflex(&mut self, now: Instant, targets: (f32, f32), pwm: (f32, f32)) -> bool {
+        let level = self.settings.reflex.power_level;
+        if level == 0 || self.drive == Drive::Idle {
+            return false;
+        }
+        let ahead = match self.drive {
+            Drive::MotorPower { .. } => pwm.0 + pwm.1,
+            _ => targets.0 + targets.1,
+        };
+        let seen = self.proximity.state();
+        let (side, power) = if ahead > REFLEX_DRIVE {
+            (packets::Side::Front, seen.front_obstacle)
+        } else if ahead < -REFLEX_DRIVE {
+            (packets::Side::Rear, seen.rear_obstacle)
+        } else {
+            return false;
+        };
+        if power == 0 || power > level {
+            return false;
+        }
+        self.halt(packets::MoveOutcome::Blocked);
+        self.send(&packets::Reflex {
+            at_ms: now.as_millis() as u32,
+            side: side as u8,
+            power_level: power,
+        });
+        crate::fw_log!(self, Info, "reflex", "stopped short of something close");
+        true
     }
 
     /// Reports a bump once the detector has seen one (see [`crate::bump`]).

@@ -91,6 +91,8 @@ pub enum RobotEventKind {
     Overrun(u32),
     /// The robot felt a bump.
     Bump(packets::Bump),
+    /// The robot's proximity reflex stopped it.
+    Reflex(packets::Reflex),
     /// A command was refused.
     Refused(packets::Nack),
 }

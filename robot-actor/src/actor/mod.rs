@@ -236,6 +236,7 @@ impl RobotActor {
             AnyPacket::WatchdogStop(_) => self.emit(RobotEventKind::WatchdogStop),
             AnyPacket::LoopOverrun(o) => self.emit(RobotEventKind::Overrun(o.late_us)),
             AnyPacket::Bump(b) => self.emit(RobotEventKind::Bump(b)),
+            AnyPacket::Reflex(r) => self.emit(RobotEventKind::Reflex(r)),
             other => debug!(
                 packet = other.packet_type().name(),
                 "ignored host-bound packet"

@@ -75,10 +75,14 @@ impl WorldModel {
         } = *seen;
         if let Some(moved_m) = self.displaced_at_rest(e, sensor, position_um, at_rest) {
             // Moved while standing, still on the tape: the sensor moved across the tape by
-            // `moved_m`, by a shift or a turn about the robot's centre, and only driving along
-            // the tape can tell the two apart again.
-            let turn = (moved_m / LINE_SENSOR_AHEAD_M).min(DISPLACED_TURN_MAX_RAD);
-            widen(&mut e.cov, moved_m, turn);
+            // `moved_m`, by a shift or a turn about the robot's centre, and a reading at rest
+            // cannot tell the two apart, nor see a shift along the tape. A robot that drove off
+            // on such a turn met a wall 3 cm from where its model had it: it is lost, and the
+            // re-localiser's follow along the tape measures its heading again.
+            return Some(format!(
+                "its line reading moved {:.1} mm while it stood",
+                moved_m * 1e3
+            ));
         }
         e.no_tape_m = 0.0;
         e.no_tape_plain_m = 0.0;

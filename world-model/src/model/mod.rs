@@ -102,9 +102,6 @@ const CONTRADICTION_AT_REST: std::time::Duration = std::time::Duration::from_mil
 /// (1.5 mm), and one at rest may flicker by one step: more than one step is a move.
 const DISPLACED_AT_REST_UM: i32 = 2000;
 const DISPLACED_READS: u32 = 3;
-/// The most heading uncertainty such a move gives the robot: a turn of this much puts the sensor
-/// 8 mm across, past where a single reading at rest says anything.
-const DISPLACED_TURN_MAX_RAD: f64 = 30.0 * PI / 180.0;
 /// From the line sensor's centre to its outermost spots, and how far over a tape's edge a spot
 /// must be to see it for certain.
 const SPOTS_REACH_M: f64 = 3.5 * world::robot::LINE_SPOT_PITCH_M;
@@ -131,6 +128,11 @@ const BUMP_MAX_M: f64 = 0.9 * LOST_SIGMA_M;
 /// The most a reported bump is believed to have moved a robot: random kicks draw up to 3 cm,
 /// and the robot's integral has read 56 mm for one of them.
 const BUMP_CREDIBLE_M: f64 = 0.1;
+/// A jolt under this along the heading, with no more than this (or a quarter of it) to the side,
+/// leaves the robot tracked, its heading this uncertain.
+const BUMP_LOST_M: f64 = 0.015;
+const ALONG_ONLY_M: f64 = 0.003;
+const SMALL_BUMP_TURN_RAD: f64 = 10.0 * PI / 180.0;
 /// The estimate a bump goes back to is at least this older than the jolt's start, which the
 /// robot dates by the main loop that crossed the threshold.
 const BUMP_BEFORE_MS: u32 = 10;

@@ -305,10 +305,12 @@ pub struct Felt {
 impl WorldModel {
     /// Robot `id` felt itself moved by something other than its wheels from its uptime
     /// `since_ms` on, by about `moved_m` (the robot's own estimate). Where tape is within reach
-    /// the estimate goes back to where it stood before the jolt, is widened to cover the move
-    /// and a turn the accelerometer cannot feel, and the robot is lost until the tape fixes it
-    /// again: a hand that shifts a robot also turns it, and a turn is what makes a confident
-    /// model wrong by decimetres a few seconds later. Wheels turned while it stood on a plain
+    /// a jolt under 15 mm straight along the heading (the robot's own drive into something) is
+    /// given back to the odometry and the robot stays tracked; any other goes back to where the
+    /// estimate stood before the jolt, is widened to cover the move and a turn the accelerometer
+    /// cannot feel, and the robot is lost until the tape fixes it again: a hand that shifts a
+    /// robot also turns it, and a turn is what makes a confident model wrong by decimetres a few
+    /// seconds later. Wheels turned while it stood on a plain
     /// stretch of tape are left to the line reading at rest, which sees a shift or turn there;
     /// at a junction or a tape's end it cannot, and the robot is lost. Where no tape is within
     /// reach it is only widened: nothing could fix it there. Returns why the robot is lost, for
@@ -359,6 +361,28 @@ impl WorldModel {
             );
             drop(e);
             self.show_bump(id, None, false);
+            return None;
+        }
+        // A small jolt straight along the heading is what a robot's own drive into something
+        // (an obstacle met, a slip under a load) feels: the odometry's error, given back, and
+        // the robot stays tracked. Lost, the re-localiser's line follower would drive it on
+        // into what stopped it.
+        if !wheels_only
+            && moved_m < BUMP_LOST_M
+            && e.lost.is_none()
+            && left_m.abs() <= ALONG_ONLY_M.max(along_m.abs() / 4.0)
+        {
+            let along_m = along_m.clamp(-BUMP_LOST_M, BUMP_LOST_M);
+            let (s, c) = here.theta.sin_cos();
+            let back = Pose {
+                x: here.x + along_m * c,
+                y: here.y + along_m * s,
+                theta: here.theta,
+            };
+            e.correction = Correction::between(odometry, back);
+            widen(&mut e.cov, BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD);
+            drop(e);
+            self.show_bump(id, Some(back), false);
             return None;
         }
         if e.lost.is_none() {

@@ -127,6 +127,8 @@ code_enum! {
         Cleared = 1,
         /// Aborted by a stop command or the watchdog.
         Stopped = 2,
+        /// Stopped by the proximity reflex: something close in the way.
+        Blocked = 3,
     }
 }
 

@@ -77,6 +77,19 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// The proximity reflex stopped the robot: it drove towards a surface close enough to return
+    /// its own light at the reflex's power level (see `reflex.power_level`).
+    pub struct Reflex {
+        /// When it stopped, the robot's uptime in milliseconds.
+        pub at_ms: u32,
+        /// The receiver that saw the surface, a [`Side`](super::Side) code.
+        pub side: u8,
+        /// The weakest power level that came back.
+        pub power_level: u8,
+    }
+}
+
+wire_struct! {
     /// The robot was moved by something other than its own wheels: a jolt its wheel speeds do
     /// not explain, or wheels turning while it stood idle.
     pub struct Bump {

@@ -22,7 +22,7 @@ pub use commands::{
     RotationMovement, SetLed, Stop, StraightMovement, WheelSpeeds,
 };
 pub use events::{
-    Bump, LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, RobotEncountered,
+    Bump, LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, Reflex, RobotEncountered,
     WatchdogStop,
 };
 pub use session::{Hello, HelloRequest, Log, Nack, Ping, Pong};
@@ -155,6 +155,8 @@ packets! {
     0x17 => SettingsSaved(SettingsSaved);
     /// Event: the robot felt a bump, robot → host.
     0x18 => Bump(Bump);
+    /// Event: the proximity reflex stopped the robot, robot → host.
+    0x19 => Reflex(Reflex);
     /// Straight move, host → robot (thesis code).
     0x40 => StraightMovement(StraightMovement);
     /// Rotation in place, host → robot.

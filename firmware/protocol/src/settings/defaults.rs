@@ -3,8 +3,8 @@
 use super::{
     BumpSettings, ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings,
     LineSensorSettings, LocomotionSettings, LogSettings, MotorSettings, PidSettings,
-    ProximitySettings, ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings,
-    WatchdogSettings,
+    ProximitySettings, ReflectorSettings, ReflexSettings, SchedulerSettings, Settings,
+    SpeedMeterSettings, WatchdogSettings,
 };
 
 impl Default for IdentitySettings {
@@ -104,6 +104,7 @@ impl Default for Settings {
                 min_moved_mm: 6,
                 idle_ticks: 3,
             },
+            reflex: ReflexSettings { power_level: 1 },
         }
     }
 }

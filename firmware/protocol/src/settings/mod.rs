@@ -16,8 +16,8 @@ pub use rules::{Bound, FieldRule, Range, RULES};
 pub use structs::{
     BumpSettings, ColourSettings, GeometrySettings, IdentitySettings, LineFollowSettings,
     LineSensorSettings, LocomotionSettings, LogSettings, MotorSettings, PidSettings,
-    ProximitySettings, ReflectorSettings, SchedulerSettings, Settings, SpeedMeterSettings,
-    WatchdogSettings,
+    ProximitySettings, ReflectorSettings, ReflexSettings, SchedulerSettings, Settings,
+    SpeedMeterSettings, WatchdogSettings,
 };
 
 const _: () = assert!(core::mem::size_of::<Settings>() <= 255 - 3);
@@ -106,8 +106,8 @@ mod tests {
         );
         assert_eq!(
             Settings::field("watchdog"),
-            Some((Settings::SIZE - 7, 2)),
-            "watchdog sits before the 1-byte log and the 4-byte bump settings"
+            Some((Settings::SIZE - 8, 2)),
+            "watchdog sits before the 1-byte log, the 4-byte bump and the 1-byte reflex settings"
         );
     }
 

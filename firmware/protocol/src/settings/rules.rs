@@ -153,6 +153,10 @@ pub const RULES: &[FieldRule] = &[
     ),
     num("bump.min_moved_mm", 0.0, 255.0),
     noted(num("bump.idle_ticks", 0.0, 255.0), "0 disables"),
+    noted(
+        num("reflex.power_level", 0.0, 4.0),
+        "1 the weakest (about 15 mm); 0 disables",
+    ),
 ];
 
 /// Reads the primitive `ty` at `offset` of `bytes` as a number.

@@ -185,6 +185,17 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// The proximity reflex: the robot stops a drive into something close ahead or behind,
+    /// whatever its host believes.
+    pub struct ReflexSettings {
+        /// A drive forwards (backwards) stops when the front (rear) receiver gets the robot's own
+        /// light back at this power level or a weaker one (1 = the weakest, a surface within about
+        /// 15 mm); 0 disables the reflex.
+        pub power_level: u8,
+    }
+}
+
+wire_struct! {
     /// Every adjustable parameter of the robot, one sub-struct per module.
     pub struct Settings {
         /// Identity.
@@ -223,5 +234,7 @@ wire_struct! {
         pub log: LogSettings,
         /// Bump detection.
         pub bump: BumpSettings,
+        /// Proximity reflex.
+        pub reflex: ReflexSettings,
     }
 }

@@ -1,0 +1,170 @@
+//! Carrying on after a disturbance: a pusher lost and found again, a move the safety check held,
+//! an aborted manoeuvre or a push the box did not give way to sends the team back onto the tape
+//! behind the box, one robot after the other, to find it and push again.
+
+use super::*;
+
+/// Regroups before the run gives up.
+pub(super) const MAX_REGROUPS: u32 = 3;
+/// Where the finder waits on the tape behind the box, from the box's near face to its front, and
+/// how much farther back the helper waits: more than the followers' stop gap, so that both follow
+/// again at once.
+const REGROUP_BEHIND: f64 = 0.06;
+const REGROUP_SPACING: f64 = 0.15;
+/// A route the safety check held is tried again this much later.
+const REGROUP_RETRY: Duration = Duration::from_millis(1000);
+
+impl CooperativePush {
+    /// Something went wrong with the work around the box: stop every robot and send the team back
+    /// onto the tape behind it, at most [`MAX_REGROUPS`] times; then the run fails with `why`.
+    pub(super) fn regroup(
+        &mut self,
+        why: String,
+        world: &WorldSnapshot,
+        team: &Team,
+    ) -> Vec<Intent> {
+        self.regroups += 1;
+        if self.regroups > MAX_REGROUPS {
+            return self.fail(format!(
+                "{why}; the team regrouped {MAX_REGROUPS} time(s) and gives up"
+            ));
+        }
+        tracing::debug!(%why, regroups = self.regroups, "cooperative_push regroups");
+        self.regroup_why = Some(why);
+        self.routed.clear();
+        self.retry_at = None;
+        for b in self.bots.values_mut() {
+            b.backing = None;
+            b.crossed_tape = false;
+        }
+        self.enter(Phase::Regroup, world);
+        let mut out: Vec<Intent> = team
+            .ids()
+            .filter(|&id| {
+                world
+                    .robot(id)
+                    .is_some_and(|v| v.localisation == Localisation::Tracking)
+            })
+            .map(|robot| Intent::Stop { robot })
+            .collect();
+        out.extend(self.reflexes(REFLEX_ON));
+        out
+    }
+
+    /// The robot `id` is lost: its moves were dropped, and it is re-localised before it takes
+    /// intents again. While following it resumes by itself once found; around the box the team
+    /// regroups.
+    pub(super) fn robot_lost(
+        &mut self,
+        id: u16,
+        why: &str,
+        world: &WorldSnapshot,
+        team: &Team,
+    ) -> Vec<Intent> {
+        match self.phase {
+            Phase::Approach | Phase::Lapping => Vec::new(),
+            // Already regrouping: its route, if it had one, is planned again once it is found.
+            Phase::Regroup => {
+                self.routed.retain(|r| *r != id);
+                Vec::new()
+            }
+            _ => self.regroup(format!("robot {id} was lost ({why})"), world, team),
+        }
+    }
+
+    /// One step of the regroup: once every robot is tracked and at rest, the finder (then the
+    /// helper) drives down to the approach lane, back along it and up onto the tape behind the
+    /// box; once both stand there, they follow the tape again to find the box.
+    pub(super) fn regrouping(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        if self.retry_at.is_some_and(|t| world.time < t) {
+            return Vec::new();
+        }
+        self.retry_at = None;
+        let ready = |id: u16| {
+            world.robot(id).is_some_and(|v| {
+                let w = v.state.wheels;
+                v.localisation == Localisation::Tracking
+                    && team.idle(id)
+                    && team.following(id).is_none()
+                    && w.left_mps.abs() < 0.005
+                    && w.right_mps.abs() < 0.005
+            })
+        };
+        let Some(site) = self.site else {
+            // Lost before the box was placed: everyone is on the tape; follow it again.
+            if team.ids().all(ready) {
+                return self.follow_again(world, team);
+            }
+            return Vec::new();
+        };
+        let mut order: Vec<u16> = self.finder.into_iter().collect();
+        order.extend(self.helper());
+        for (rank, id) in order.iter().copied().enumerate() {
+            if self.routed.contains(&id) {
+                continue;
+            }
+            // One at a time, in order: the one ahead on the lane goes first.
+            if !ready(id) || !order[..rank].iter().all(|&o| ready(o)) {
+                return Vec::new();
+            }
+            let Some(view) = world.robot(id) else {
+                return Vec::new();
+            };
+            self.routed.push(id);
+            let behind =
+                -(self.box_half + HALF_LEN + REGROUP_BEHIND + rank as f64 * REGROUP_SPACING);
+            return self.send(id, self.back_behind(view.pose, &site, behind));
+        }
+        if order.iter().all(|&id| ready(id)) {
+            return self.follow_again(world, team);
+        }
+        Vec::new()
+    }
+
+    /// A regroup route was held: the robot stands where it is; plan it again a little later.
+    pub(super) fn route_held(&mut self, id: u16, world: &WorldSnapshot) {
+        self.routed.retain(|r| *r != id);
+        self.retry_at = Some(world.time + REGROUP_RETRY);
+    }
+
+    /// From `pose` down to the approach lane, along it to `behind` the box's centre and up onto
+    /// the tape there, facing the way the team follows it.
+    fn back_behind(&self, pose: Pose, site: &Site, behind: f64) -> Manoeuvre {
+        let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
+        let along_now = here.dot(&site.along);
+        let lane = self.lane() - APPROACH_BELOW;
+        let down = site.at(along_now, lane);
+        let below = site.at(behind, lane);
+        let on_tape = site.at(behind, 0.0);
+        Manoeuvre::from(pose, MANOEUVRE_MPS)
+            .to(down.x, down.y)
+            .to(below.x, below.y)
+            .to(on_tape.x, on_tape.y)
+            .turn_to(Site::heading(site.along))
+    }
+
+    /// Everyone stands on the tape: follow it again until someone finds the box, or, when a push
+    /// the box gave way to was done already, lap.
+    fn follow_again(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        self.finder = None;
+        self.site = None;
+        self.sighted = None;
+        self.routed.clear();
+        if self.push_time.is_some() {
+            for b in self.bots.values_mut() {
+                b.lapped_m = 0.0;
+                b.last_s = None;
+                b.lap_odometer_m = None;
+            }
+            self.enter(Phase::Lapping, world);
+        } else {
+            self.enter(Phase::Approach, world);
+        }
+        team.ids()
+            .map(|robot| Intent::FollowLine {
+                robot,
+                speed: Some(self.speed),
+            })
+            .collect()
+    }
+}
