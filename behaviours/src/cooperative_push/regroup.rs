@@ -11,6 +11,13 @@ pub(super) const MAX_REGROUPS: u32 = 3;
 /// again at once.
 const REGROUP_BEHIND: f64 = 0.06;
 const REGROUP_SPACING: f64 = 0.15;
+/// The regroup's lane runs this far below the slots: a robot backing down there keeps its rear
+/// 25 mm from the push world's wall, beyond its reflex's reach, and one turning there clears the
+/// other pusher still in its slot by 9 mm (no one passes another: the one farthest behind goes
+/// first).
+const REGROUP_BELOW: f64 = 0.045;
+/// A robot whose heading is within about 35° of the push direction faces the box.
+const FACING_BOX_COS: f64 = 0.8;
 /// A route the safety check held is tried again this much later.
 const REGROUP_RETRY: Duration = Duration::from_millis(1000);
 
@@ -72,9 +79,9 @@ impl CooperativePush {
         }
     }
 
-    /// One step of the regroup: once every robot is tracked and at rest, the finder (then the
-    /// helper) drives down to the approach lane, back along it and up onto the tape behind the
-    /// box; once both stand there, they follow the tape again to find the box.
+    /// One step of the regroup: once every robot is tracked and at rest, each in turn (the one
+    /// farthest behind first) drives down to a lane below the slots, back along it and up onto
+    /// the tape behind the box; once all stand there, they follow the tape again to find it.
     pub(super) fn regrouping(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         if self.retry_at.is_some_and(|t| world.time < t) {
             return Vec::new();
@@ -97,13 +104,21 @@ impl CooperativePush {
             }
             return Vec::new();
         };
-        let mut order: Vec<u16> = self.finder.into_iter().collect();
-        order.extend(self.helper());
+        // The robot farthest behind goes first, to the farther place: no one passes another in
+        // the lane.
+        let along = |id: u16| {
+            world.robot(id).map_or(0.0, |v| {
+                (Vector2::new(v.pose.x, v.pose.y) - site.centre.coords).dot(&site.along)
+            })
+        };
+        let mut order: Vec<u16> = self.bots.keys().copied().collect();
+        order.sort_by(|a, b| along(*a).total_cmp(&along(*b)));
+        let n = order.len();
         for (rank, id) in order.iter().copied().enumerate() {
             if self.routed.contains(&id) {
                 continue;
             }
-            // One at a time, in order: the one ahead on the lane goes first.
+            // One at a time, in order.
             if !ready(id) || !order[..rank].iter().all(|&o| ready(o)) {
                 return Vec::new();
             }
@@ -111,8 +126,8 @@ impl CooperativePush {
                 return Vec::new();
             };
             self.routed.push(id);
-            let behind =
-                -(self.box_half + HALF_LEN + REGROUP_BEHIND + rank as f64 * REGROUP_SPACING);
+            let place = (n - 1 - rank) as f64;
+            let behind = -(self.box_half + HALF_LEN + REGROUP_BEHIND + place * REGROUP_SPACING);
             return self.send(id, self.back_behind(view.pose, &site, behind));
         }
         if order.iter().all(|&id| ready(id)) {
@@ -128,16 +143,24 @@ impl CooperativePush {
     }
 
     /// From `pose` down to the approach lane, along it to `behind` the box's centre and up onto
-    /// the tape there, facing the way the team follows it.
+    /// the tape there, facing the way the team follows it. A robot facing the box (in its slot,
+    /// or after a push) backs straight down: a turn there would sweep its corners into the other
+    /// pusher standing 16 mm beside it.
     fn back_behind(&self, pose: Pose, site: &Site, behind: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along);
-        let lane = self.lane() - APPROACH_BELOW;
+        let lane = self.lane() - REGROUP_BELOW;
         let down = site.at(along_now, lane);
         let below = site.at(behind, lane);
         let on_tape = site.at(behind, 0.0);
-        Manoeuvre::from(pose, MANOEUVRE_MPS)
-            .to(down.x, down.y)
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let start = Manoeuvre::from(pose, MANOEUVRE_MPS);
+        let start = if heading.dot(&site.push) > FACING_BOX_COS {
+            start.back_to(down.x, down.y)
+        } else {
+            start.to(down.x, down.y)
+        };
+        start
             .to(below.x, below.y)
             .to(on_tape.x, on_tape.y)
             .turn_to(Site::heading(site.along))
