@@ -165,8 +165,22 @@ fn pusher_world(robots: &[(u16, f64)]) -> simulator::World {
     w
 }
 
+/// Sets every robot's proximity reflex to `power_level` (0 off).
+fn reflex(sim: &mut simulator::Simulation, power_level: u8) {
+    let (offset, _) = protocol::settings::Settings::field("reflex.power_level").unwrap();
+    for i in 0..sim.robots().len() {
+        send(
+            sim,
+            i,
+            SettingsUpdate::new(offset as u16, &[power_level]).unwrap(),
+        );
+    }
+}
+
 fn push_for(world: simulator::World, secs: u64, physics_every: u32) -> f64 {
     let mut sim = connected_with(world, 5, physics_every);
+    // Pushing is driving into what the front receiver sees: the reflex would stop it.
+    reflex(&mut sim, 0);
     for i in 0..sim.robots().len() {
         // Full power straight ahead: the motor-power teleop, no speed loop to back off.
         send(
@@ -180,6 +194,54 @@ fn push_for(world: simulator::World, secs: u64, physics_every: u32) -> f64 {
     }
     run(&mut sim, Duration::from_secs(secs), |_, _| false);
     sim.obstacle_displacements()[0]
+}
+
+/// A robot sent straight at the box 3 cm ahead stops short of it by its own reflex, the box
+/// untouched; with the reflex off, the same move drives into the box.
+#[test]
+fn the_reflex_stops_a_robot_short_of_a_box_it_was_sent_into() {
+    for (power_level, stops) in [(1, true), (0, false)] {
+        let mut world = pusher_world(&[(1, 0.0)]);
+        world.robots[0].position.x -= 0.03;
+        let mut sim = connected_with(world, 5, 1);
+        reflex(&mut sim, power_level);
+        run(&mut sim, Duration::from_millis(50), |_, _| false);
+        let start = sim.robots()[0].pose().x;
+        send(
+            &mut sim,
+            0,
+            StraightMovement {
+                distance_m: 0.1,
+                speed_mps: 0.05,
+                move_id: 1,
+            },
+        );
+        let (mut outcome, mut reflexes) = (None, 0);
+        run(&mut sim, Duration::from_secs(4), |_, p| {
+            match p {
+                AnyPacket::MoveFinished(m) => outcome = Some(m.outcome),
+                AnyPacket::Reflex(_) => reflexes += 1,
+                _ => {}
+            }
+            false
+        });
+        let moved = sim.obstacle_displacements()[0];
+        let driven = sim.robots()[0].pose().x - start;
+        eprintln!(
+            "reflex {power_level}: drove {:.1} mm, box moved {:.2} mm, outcome {outcome:?}",
+            driven * 1e3,
+            moved * 1e3
+        );
+        if stops {
+            assert_eq!(outcome, Some(MoveOutcome::Blocked as u8));
+            assert_eq!(reflexes, 1);
+            assert!(moved < 1e-4, "the box moved {:.2} mm", moved * 1e3);
+            assert!(driven > 0.01 && driven < 0.03, "{:.1} mm", driven * 1e3);
+        } else {
+            assert_eq!(reflexes, 0);
+            assert!(driven > 0.028, "it reaches the box: {:.1} mm", driven * 1e3);
+        }
+    }
 }
 
 #[test]

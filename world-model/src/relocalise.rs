@@ -204,6 +204,13 @@ impl Relocaliser {
         }
     }
 
+    /// The robot's proximity reflex stopped one of the routine's moves (and dropped the rest):
+    /// something stands close in its way, and this search cannot go on from here.
+    pub fn blocked(&mut self) {
+        self.outstanding = 0;
+        self.give_up();
+    }
+
     /// Some of the routine's moves were held by the safety check: the robot stands; try them
     /// again a little later.
     pub fn held(&mut self, moves: Vec<MoveCommand>, now: Instant) {

@@ -5,10 +5,11 @@
 //! length. They back onto the tape one after the other and follow it again. A box still found on
 //! the tape afterwards means the push failed; it is tried again, at most twice.
 //!
-//! A disturbance around the box (a robot lost and found again, a move the safety check held, an
-//! aborted manoeuvre, a push the box did not give way to) does not end the run: the team stops,
-//! drives back onto the tape behind the box one robot after the other, and finds it again, at
-//! most three times; then the run fails with what went wrong.
+//! A disturbance while the team gathers at the box (a robot lost and found again, a move the
+//! safety check held, an aborted manoeuvre) does not end the run: the team stops, drives back onto
+//! the tape behind the box one robot after the other, and finds it again, at most three times;
+//! then the run fails with what went wrong. From the push on, the pushers' slip under the box is
+//! unmeasured until the tape finds them, so a disturbance then ends the run.
 //!
 //! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
 //! robot ahead in the world model creeps, and stops at the first reflection at the weakest power

@@ -1,6 +1,6 @@
-//! Carrying on after a disturbance: a pusher lost and found again, a move the safety check held,
-//! an aborted manoeuvre or a push the box did not give way to sends the team back onto the tape
-//! behind the box, one robot after the other, to find it and push again.
+//! Carrying on after a disturbance: a pusher lost and found again, a move the safety check held or
+//! an aborted manoeuvre while the team gathers at the box sends it back onto the tape behind the
+//! box, one robot after the other, to find it and place itself again.
 
 use super::*;
 

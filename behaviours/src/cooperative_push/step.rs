@@ -45,8 +45,6 @@ impl CooperativePush {
             },
         };
         match next {
-            // A push the box did not give way to is tried again from the tape behind it.
-            Err(why) if self.phase == Phase::Push => self.regroup(why, world, team),
             Err(why) => self.fail(why),
             Ok(intents) => {
                 out.extend(intents);

@@ -186,7 +186,11 @@ impl Handler<RobotEvent> for Supervisor {
         if let Some(routine) = self.relocalising.get_mut(&e.robot_id) {
             match &e.kind {
                 RobotEventKind::MoveFinished { outcome, .. } => {
-                    routine.move_finished(*outcome == MoveOutcome::Completed);
+                    if *outcome == MoveOutcome::Blocked {
+                        routine.blocked();
+                    } else {
+                        routine.move_finished(*outcome == MoveOutcome::Completed);
+                    }
                     self.relocalise(e.robot_id, None, ctx);
                     return;
                 }
