@@ -292,6 +292,8 @@ impl Behaviour for LineFollow {
             // A robot whose link is lost has stopped (its watchdog) and one back has not
             // resumed: its speed is sent again, held by the supervisor until the link is back.
             Event::LinkLost | Event::Connected => f.sent = 0.0,
+            // Its reflex stopped it: once the way is clear its speed is sent again.
+            Event::Reflexed { .. } => f.sent = 0.0,
             _ => {}
         }
         Vec::new()
@@ -305,10 +307,11 @@ impl Behaviour for LineFollow {
         _: &mut Team,
     ) -> Vec<Intent> {
         match event {
-            // A lost robot was stopped and its follow commands held; once found it is sent its
-            // speed again at the next snapshot.
+            // A lost robot was stopped and its follow commands held, and the supervisor stopped
+            // the robots moving near it: once it is found, everyone is sent its speed again at
+            // the next snapshot.
             LocalisationEvent::Found => {
-                if let Some(f) = self.followers.get_mut(&robot) {
+                for f in self.followers.values_mut() {
                     f.sent = 0.0;
                 }
                 Vec::new()

@@ -118,8 +118,9 @@ impl<B: Behaviour + ?Sized> Runner<B> {
         if self.verdict.is_some() {
             return Reply::default();
         }
-        if matches!(event, LocalisationEvent::Lost { .. }) {
-            self.team.lost(robot);
+        match event {
+            LocalisationEvent::Lost { .. } => self.team.lost(robot),
+            LocalisationEvent::Found => self.team.found(),
         }
         self.call(|b, team| b.on_localisation(robot, event, world, team))
     }

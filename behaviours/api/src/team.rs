@@ -233,7 +233,8 @@ impl Team {
                 m.held_since = None;
                 m.following = None;
             }
-            Event::Connected | Event::WatchdogStop => m.following = None,
+            // The robot stopped by itself: a follow command is in force no longer.
+            Event::Connected | Event::WatchdogStop | Event::Reflexed { .. } => m.following = None,
             _ => {}
         }
         true
@@ -247,6 +248,15 @@ impl Team {
             m.outstanding.clear();
             m.retries.clear();
             m.held_since = None;
+            m.following = None;
+        }
+    }
+
+    /// A lost robot was found again. While it was lost the supervisor stopped every robot moving
+    /// near it, which the books do not show: no follow command is taken to be in force, so the
+    /// behaviour's next ones go out again.
+    pub fn found(&mut self) {
+        for m in self.members.values_mut() {
             m.following = None;
         }
     }
