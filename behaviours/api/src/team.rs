@@ -52,8 +52,9 @@ struct Member {
     following: Option<f32>,
     /// Held moves to send again, in order.
     retries: VecDeque<Retry>,
-    /// Moves that ended other than completed.
+    /// Moves that ended other than completed, or stopped by the robot's own reflex.
     interrupted: u32,
+    blocked: u32,
     /// When a move of this robot was first held since one last finished.
     held_since: Option<Duration>,
 }
@@ -127,6 +128,12 @@ impl Team {
     /// Moves of `robot` that ended aborted, cleared or stopped, or were lost with its link.
     pub fn interrupted(&self, robot: u16) -> u32 {
         self.members.get(&robot).map_or(0, |m| m.interrupted)
+    }
+
+    /// Moves of `robot` its proximity reflex stopped short of something close (`Blocked`): the
+    /// robot stands where it stopped, and a leg planned from its pose can be tried again.
+    pub fn blocked(&self, robot: u16) -> u32 {
+        self.members.get(&robot).map_or(0, |m| m.blocked)
     }
 
     /// The follow speed in force for `robot`, if it was told to follow and nothing has stopped
@@ -222,7 +229,9 @@ impl Team {
                 };
                 m.outstanding.remove(k);
                 m.held_since = None;
-                if outcome != MoveOutcome::Completed {
+                if outcome == MoveOutcome::Blocked {
+                    m.blocked += 1;
+                } else if outcome != MoveOutcome::Completed {
                     m.interrupted += 1;
                 }
             }
@@ -403,6 +412,21 @@ mod tests {
         assert!(team.idle(1));
         assert_eq!(team.interrupted(1), 3);
         assert!(!team.event(1, &end(1, MoveOutcome::Stopped)));
+        // Stopped by its own reflex: blocked, not interrupted, and no longer following.
+        team.outgoing(Intent::moves(1, [STEP], 2));
+        assert!(team.event(1, &end(2, MoveOutcome::Blocked)));
+        assert_eq!((team.interrupted(1), team.blocked(1)), (3, 1));
+        team.outgoing(vec![Intent::FollowLine {
+            robot: 1,
+            speed: Some(0.1),
+        }]);
+        team.event(
+            1,
+            &Event::Reflexed {
+                side: protocol::packets::Side::Front,
+            },
+        );
+        assert_eq!(team.following(1), None);
     }
 
     #[test]

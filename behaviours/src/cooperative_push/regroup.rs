@@ -30,6 +30,16 @@ impl CooperativePush {
         world: &WorldSnapshot,
         team: &Team,
     ) -> Vec<Intent> {
+        // From the push on, the pushers' wheels have slipped under the box by an amount nothing
+        // measures until their sensors find the tape again (a push the box did not give way to
+        // leaves the model up to 15 cm ahead of them): a route planned from such a pose backed
+        // robots into the wall. Only the tape can take them back, and the run ends instead.
+        if matches!(
+            self.phase,
+            Phase::Push | Phase::FinderRejoins | Phase::HelperWaits | Phase::HelperRejoins
+        ) {
+            return self.fail(why);
+        }
         self.regroups += 1;
         if self.regroups > MAX_REGROUPS {
             return self.fail(format!(

@@ -105,7 +105,7 @@ impl CooperativePush {
     pub(super) fn aborted(&mut self, team: &Team) -> Option<u16> {
         let mut found = None;
         for id in team.ids() {
-            let now = team.interrupted(id);
+            let now = team.interrupted(id) + team.blocked(id);
             let seen = self.interrupts_seen.entry(id).or_insert(0);
             if now > *seen && self.phase != Phase::Regroup {
                 found = found.or(Some(id));
@@ -235,7 +235,6 @@ impl CooperativePush {
                 ));
             }
             self.push_time = Some(world.time.saturating_sub(self.push_started));
-            out.extend(self.reflexes(REFLEX_ON));
             if let Some(f) = self.finder {
                 out.extend(self.start_backing(f));
             }
@@ -355,17 +354,22 @@ impl Behaviour for CooperativePush {
                 }];
                 match self.phase {
                     Phase::FinderRejoins if Some(robot) == self.finder => {
+                        let mut out = follow;
                         let next = if self.helper().is_some() {
                             Phase::HelperWaits
                         } else {
+                            out.extend(self.reflexes(REFLEX_ON));
                             Phase::Lapping
                         };
                         self.enter(next, world);
-                        follow
+                        out
                     }
+                    // Both back on the tape: their reflexes are on again for the laps.
                     Phase::HelperRejoins if Some(robot) == self.helper() => {
                         self.enter(Phase::Lapping, world);
-                        follow
+                        let mut out = follow;
+                        out.extend(self.reflexes(REFLEX_ON));
+                        out
                     }
                     _ => Vec::new(),
                 }

@@ -19,8 +19,11 @@ use crate::settings::read_chunks;
 pub(super) struct SettingsMirror {
     /// The settings as last read back (whole once `chunks_missing` is 0 after a hello).
     pub(super) settings: Settings,
-    /// Chunks of the latest full read still to come.
+    /// Chunks of the latest full read still to come, and which (offset, length) they are: a
+    /// write's read-back of the same range is answered after them (the robot answers in order),
+    /// so the first such reply is the chunk's, with the value from before the write.
     pub(super) chunks_missing: usize,
+    chunks: Vec<(usize, usize)>,
     /// Fields the host wrote, re-applied after a reconnect.
     pub(super) host_writes: BTreeMap<usize, Vec<u8>>,
     /// Writes waiting for their read-back, oldest first: offset, length, the bytes written and
@@ -38,6 +41,7 @@ impl SettingsMirror {
         Self {
             settings,
             chunks_missing: 0,
+            chunks: Vec::new(),
             host_writes: BTreeMap::new(),
             read_backs: VecDeque::new(),
             full_reads: Vec::new(),
@@ -77,6 +81,7 @@ impl RobotActor {
     pub(super) fn request_all_settings(&mut self) {
         let chunks = read_chunks();
         self.mirror.chunks_missing = chunks.len();
+        self.mirror.chunks = chunks.clone();
         for (offset, len) in chunks {
             let _ = self.send(&packets::SettingsRead {
                 offset: offset as u16,
@@ -110,8 +115,14 @@ impl RobotActor {
         if self.mirror.settings.write(offset, &bytes).is_err() {
             return;
         }
-        if self.mirror.chunks_missing > 0 {
-            self.mirror.chunks_missing -= 1;
+        let chunk = self
+            .mirror
+            .chunks
+            .iter()
+            .position(|&c| c == (offset, bytes.len()));
+        if let Some(k) = chunk {
+            self.mirror.chunks.remove(k);
+            self.mirror.chunks_missing = self.mirror.chunks.len();
             if self.mirror.chunks_missing == 0 {
                 if self.odometry.totals() == (0, 0) {
                     // Odometry uses the robot's own wheel geometry once it is known.
@@ -124,6 +135,7 @@ impl RobotActor {
                     let _ = w.send(Ok(s));
                 }
             }
+            return;
         }
         let robot = self.robot_id();
         if let Some(pos) = self
