@@ -25,7 +25,8 @@ use behaviour_api::moves::{Leg, Legs};
 use behaviour_api::team::Team;
 use behaviour_api::track_loop::TrackLoop;
 use behaviour_api::{
-    params, Behaviour, BehaviourConfig, Intent, Register, RobotView, Verdict, WorldSnapshot,
+    params, Behaviour, BehaviourConfig, Intent, LocalisationEvent, Register, RobotView, Verdict,
+    WorldSnapshot,
 };
 
 mod sensing;
@@ -91,6 +92,8 @@ struct Bot {
     started: bool,
     /// The last robot its front receiver identified.
     front_sighting: Option<FrontSighting>,
+    /// Its interrupted moves the supervisor's handling of a lost robot accounts for.
+    forgiven: u32,
 }
 
 /// The token ring behaviour.
@@ -112,6 +115,10 @@ pub struct TokenRing {
     reversals: u32,
     detours: u32,
     last_pass: Duration,
+    /// Until when moves interrupted are the supervisor's doing: it stopped a lost robot and the
+    /// robots moving near it, whose detours and turns go on from where they stand once it is
+    /// found.
+    forgive_until: Duration,
     odometer: Odometer,
     verdict: Option<Verdict>,
 }
@@ -157,6 +164,7 @@ impl Register for TokenRing {
             reversals: 0,
             detours: 0,
             last_pass: Duration::ZERO,
+            forgive_until: Duration::ZERO,
             odometer: Odometer::new(),
             verdict: None,
         })

@@ -44,8 +44,18 @@ impl TokenRing {
                 self.passes
             ));
         }
-        if let Some(id) = team.ids().find(|id| team.interrupted(*id) > 0) {
-            return Some(format!("robot {id}: a manoeuvre was aborted"));
+        let forgiving = world.time <= self.forgive_until;
+        for id in team.ids() {
+            let Some(bot) = self.bots.get_mut(&id) else {
+                continue;
+            };
+            let interrupted = team.interrupted(id);
+            if interrupted > bot.forgiven {
+                if !forgiving {
+                    return Some(format!("robot {id}: a manoeuvre was aborted"));
+                }
+                bot.forgiven = interrupted;
+            }
         }
         None
     }
@@ -168,6 +178,9 @@ impl TokenRing {
     }
 }
 
+/// How long after a robot is found lost the moves interrupted are the supervisor's stops.
+const LOST_STOPS: Duration = Duration::from_secs(2);
+
 impl Behaviour for TokenRing {
     fn start(&mut self, world: &WorldSnapshot, team: &mut Team) -> Vec<Intent> {
         self.last_pass = world.time;
@@ -233,6 +246,22 @@ impl Behaviour for TokenRing {
             Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
         }
+    }
+
+    /// A robot found lost: the supervisor stopped it and the robots moving near it, dropping
+    /// their moves; each detour or turn goes on leg by leg from where its robot stands, the lost
+    /// one's once it is found (its intents are held until then).
+    fn on_localisation(
+        &mut self,
+        _robot: u16,
+        event: &LocalisationEvent,
+        world: &WorldSnapshot,
+        _team: &mut Team,
+    ) -> Vec<Intent> {
+        if matches!(event, LocalisationEvent::Lost { .. }) {
+            self.forgive_until = world.time + LOST_STOPS;
+        }
+        Vec::new()
     }
 
     fn on_held(
