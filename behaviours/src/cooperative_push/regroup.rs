@@ -6,9 +6,9 @@ use super::*;
 
 /// Regroups before the run gives up.
 pub(super) const MAX_REGROUPS: u32 = 3;
-/// Where the finder waits on the tape behind the box, from the box's near face to its front, and
-/// how much farther back the helper waits: more than the followers' stop gap, so that both follow
-/// again at once.
+/// Where the robot nearer the box waits on the tape behind it, from the box's near face to its
+/// front, and how much farther back the other waits: more than the followers' stop gap, so that
+/// both follow again at once.
 const REGROUP_BEHIND: f64 = 0.06;
 const REGROUP_SPACING: f64 = 0.15;
 /// The regroup's lane runs this far below the slots: a robot backing down there keeps its rear

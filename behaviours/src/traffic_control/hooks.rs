@@ -190,6 +190,18 @@ impl Behaviour for TrafficControl {
                         self.lose(k, "the world model lost it".into());
                         return Vec::new();
                     }
+                    // Stopped by the supervisor beside a robot it lost, or short of something
+                    // close by its own reflex: the leg goes on from where it stands, held by the
+                    // safety check until the way is clear.
+                    if matches!(outcome, MoveOutcome::Stopped | MoveOutcome::Blocked) {
+                        if !team.idle(robot) {
+                            return Vec::new();
+                        }
+                        if self.bots[k].driving.is_some() {
+                            return self.drive(k, world);
+                        }
+                        return self.step(world, team, false);
+                    }
                     return self.fail(format!("robot {robot}: a move ended {outcome:?}"));
                 }
                 self.bots[k].held_since = None;
