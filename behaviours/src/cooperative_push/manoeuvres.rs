@@ -89,8 +89,9 @@ impl CooperativePush {
     }
 
     /// From `pose` on the tape behind the box: down to an approach lane below the slots, along it,
-    /// then a quarter turn and straight up into the slot. Arriving sideways along the slots'
-    /// line would swing the 48 mm body into the robot already waiting there.
+    /// then a quarter turn and straight up into the slot. Arriving sideways along the slots' line
+    /// would swing the 48 mm body into the robot already waiting there. The robot's own reflex
+    /// may end the last leg a little short of the box.
     pub(super) fn to_slot(&self, id: u16, pose: Pose, site: &Site, back_up: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along) - back_up;
@@ -103,6 +104,13 @@ impl CooperativePush {
             .to(down.x, down.y)
             .to(below.x, below.y)
             .to(slot.x, slot.y)
+    }
+
+    /// Whether a robot whose reflex stopped its leg into the slot stands in the slot: at most
+    /// [`SLOT_SHORT`] short of where the model puts the slot, across the track.
+    pub(super) fn in_slot(&self, view: &RobotView, site: &Site) -> bool {
+        let here = Vector2::new(view.pose.x, view.pose.y) - site.centre.coords;
+        here.dot(&site.push) >= self.lane() - SLOT_SHORT
     }
 
     /// After the push: back up until the line sensor finds the tape. Odometry cannot say how far
@@ -151,8 +159,10 @@ impl CooperativePush {
         for (&id, b) in self.bots.iter_mut() {
             b.push_odometer_m = self.odometer.distance_m(id);
         }
-        // One command per robot in the same reply: the supervisor sends them back to back.
-        let mut out = Vec::new();
+        // The reflexes go off before the push drives into the box: a setting written before a
+        // move reaches the robot first on the same link. One command per robot in the same
+        // reply: the supervisor sends them back to back.
+        let mut out = self.reflexes(0);
         for id in ids {
             if let Some(view) = world.robot(id) {
                 let route = Manoeuvre::from(view.pose, PUSH_MPS).straight(LANE_GAP + self.push_m);

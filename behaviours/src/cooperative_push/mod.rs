@@ -57,6 +57,10 @@ const APPROACH_BELOW: f64 = 0.055;
 /// that the second can turn into its slot beside the first with room for a few millimetres of
 /// pose error, while each still covers 12 mm of a 40 mm box.
 const SLOT_OFFSET: f64 = 0.024;
+/// A robot whose reflex stopped it on its way into the slot counts as there when the model has it
+/// at most this short of it: the reflex sees the box within about 15 mm, the slot's front is 12 mm
+/// from it; a robot stopped farther back stopped at something else.
+const SLOT_SHORT: f64 = 0.012;
 /// The gap between the finder's front and the box in its first state report that sees the box at
 /// the shortest reach (15 mm): the reach less the creep between the IR's sample and the report
 /// (measured in the simulator: 12.7 mm). Pose and reading come from one report, so the link's
@@ -148,6 +152,8 @@ struct Bot {
     backing_odometer_m: f64,
     /// The line sensor crossed the tape during the push: the box gave way.
     crossed_tape: bool,
+    /// On its route into its slot, whose last leg the robot's reflex may end short of the box.
+    seeking: bool,
 }
 
 /// The cooperative pushing behaviour.
@@ -176,8 +182,8 @@ pub struct CooperativePush {
     regroup_why: Option<String>,
     routed: Vec<u16>,
     retry_at: Option<Duration>,
-    /// Each robot's count of interrupted moves already acted on.
-    interrupts_seen: BTreeMap<u16, u32>,
+    /// Each robot's counts of interrupted and reflex-blocked moves already acted on.
+    interrupts_seen: BTreeMap<u16, (u32, u32)>,
 }
 
 params! {

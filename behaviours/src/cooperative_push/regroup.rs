@@ -53,6 +53,7 @@ impl CooperativePush {
         for b in self.bots.values_mut() {
             b.backing = None;
             b.crossed_tape = false;
+            b.seeking = false;
         }
         self.enter(Phase::Regroup, world);
         let mut out: Vec<Intent> = team

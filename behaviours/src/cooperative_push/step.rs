@@ -11,7 +11,7 @@ impl CooperativePush {
         if let Some(why) = self.overdue(world) {
             return self.fail(why);
         }
-        if let Some(id) = self.aborted(team) {
+        if let Some(id) = self.aborted(world, team) {
             return self.regroup(format!("robot {id}: a manoeuvre was aborted"), world, team);
         }
         let mut out = self.spacing(world, team);
@@ -30,11 +30,7 @@ impl CooperativePush {
             Phase::Approach | Phase::FinderRejoins | Phase::HelperRejoins => Ok(Vec::new()),
             Phase::Gather => self.gather(world, team),
             Phase::FinderToSlot => Ok(self.finder_to_slot(world, team)),
-            Phase::HelperToSlot => Ok(if self.helper().is_some_and(|h| team.idle(h)) {
-                self.start_push(world)
-            } else {
-                Vec::new()
-            }),
+            Phase::HelperToSlot => Ok(self.helper_to_slot(world, team)),
             Phase::Push => self.pushed(world, team),
             Phase::HelperWaits => Ok(self.helper_waits(world)),
             Phase::Regroup => Ok(self.regrouping(world, team)),
@@ -100,17 +96,29 @@ impl CooperativePush {
         None
     }
 
-    /// A robot whose move was aborted (a stop, a lost link, a lost robot) since the last step,
-    /// outside a regroup, which stops robots itself.
-    pub(super) fn aborted(&mut self, team: &Team) -> Option<u16> {
+    /// A robot whose move was aborted (a stop, a lost link, a lost robot, its reflex short of
+    /// something other than the box) since the last step, outside a regroup, which stops robots
+    /// itself.
+    pub(super) fn aborted(&mut self, world: &WorldSnapshot, team: &Team) -> Option<u16> {
         let mut found = None;
         for id in team.ids() {
-            let now = team.interrupted(id) + team.blocked(id);
-            let seen = self.interrupts_seen.entry(id).or_insert(0);
-            if now > *seen && self.phase != Phase::Regroup {
+            let now = (team.interrupted(id), team.blocked(id));
+            let seen = self.interrupts_seen.entry(id).or_insert((0, 0));
+            let (interrupted, blocked) = (now.0 > seen.0, now.1 > seen.1);
+            *seen = now;
+            if self.phase == Phase::Regroup || !(interrupted || blocked) {
+                continue;
+            }
+            // The reflex ends the leg up into the slot at the box: that is the leg's end.
+            let at_box = !interrupted
+                && self.bots.get(&id).is_some_and(|b| b.seeking)
+                && self
+                    .site
+                    .zip(world.robot(id))
+                    .is_some_and(|(site, view)| self.in_slot(view, &site));
+            if !at_box {
                 found = found.or(Some(id));
             }
-            *seen = now;
         }
         found
     }
@@ -172,10 +180,8 @@ impl CooperativePush {
             self.site = Some(site);
             let route = self.to_slot(finder.id, finder.pose, &site, 0.015);
             let id = finder.id;
-            // The slots are 12 mm from the box and the push drives into it: the robots' own
-            // reflexes would stop both; the safety check keeps them apart meanwhile.
-            out.extend(self.reflexes(0));
             out.extend(self.send(id, route));
+            self.seek(id);
             self.enter(Phase::FinderToSlot, world);
         }
         Ok(out)
@@ -184,19 +190,53 @@ impl CooperativePush {
     /// The finder in its slot: the helper sets off for its own, or, alone, the push starts.
     pub(super) fn finder_to_slot(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         let mut out = Vec::new();
-        if self.finder.is_some_and(|f| team.idle(f)) {
-            match (self.helper(), self.site) {
-                (Some(h), Some(site)) => {
-                    if let Some(view) = world.robot(h) {
-                        let route = self.to_slot(h, view.pose, &site, 0.0);
-                        out.extend(self.send(h, route));
-                    }
-                    self.enter(Phase::HelperToSlot, world);
+        let Some(f) = self.finder else {
+            return out;
+        };
+        if !self.in_place(f, team) {
+            return out;
+        }
+        match (self.helper(), self.site) {
+            (Some(h), Some(site)) => {
+                if let Some(view) = world.robot(h) {
+                    let route = self.to_slot(h, view.pose, &site, 0.0);
+                    out.extend(self.send(h, route));
+                    self.seek(h);
                 }
-                _ => out.extend(self.start_push(world)),
+                self.enter(Phase::HelperToSlot, world);
+            }
+            _ => out.extend(self.start_push(world)),
+        }
+        out
+    }
+
+    /// The helper in its slot: the push starts.
+    pub(super) fn helper_to_slot(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let mut out = Vec::new();
+        if let Some(h) = self.helper() {
+            if self.in_place(h, team) {
+                out.extend(self.start_push(world));
             }
         }
         out
+    }
+
+    /// `id` is on its way into its slot.
+    fn seek(&mut self, id: u16) {
+        if let Some(b) = self.bots.get_mut(&id) {
+            b.seeking = true;
+        }
+    }
+
+    /// Whether `id` stands in its slot (its route there is done).
+    fn in_place(&mut self, id: u16, team: &Team) -> bool {
+        let done = team.idle(id);
+        if done {
+            if let Some(b) = self.bots.get_mut(&id) {
+                b.seeking = false;
+            }
+        }
+        done
     }
 
     /// The push ended: it counts only if the box gave way and each pusher drove its share; then
