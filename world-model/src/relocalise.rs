@@ -44,6 +44,9 @@ const LEAVE_MARGIN_M: f64 = 0.015;
 /// A move the safety check holds is tried again this much later, at most this many times.
 const RETRY_AFTER: Duration = Duration::from_millis(500);
 const MAX_RETRIES: u32 = 20;
+/// A held sweep leg is halved at every this many holds of the routine, but not below this length.
+const SHORTEN_AFTER: u32 = 4;
+const SHORTEST_LEG_M: f32 = 0.01;
 
 /// What the routine asks the supervisor to do for its robot.
 #[derive(Clone, Debug, PartialEq)]
@@ -213,10 +216,22 @@ impl Relocaliser {
 
     /// Some of the routine's moves were held by the safety check: the robot stands; try them
     /// again a little later.
-    pub fn held(&mut self, moves: Vec<MoveCommand>, now: Instant) {
+    ///
+    /// A sweep leg held again and again stands against something that does not go away (often a
+    /// robot that waits for this one's exclusion zone to clear): every [`SHORTEN_AFTER`] holds
+    /// it is halved, down to [`SHORTEST_LEG_M`], so the side towards it is searched as far as
+    /// the safety check lets the robot go instead of not at all.
+    pub fn held(&mut self, mut moves: Vec<MoveCommand>, now: Instant) {
         self.outstanding = self.outstanding.saturating_sub(moves.len());
-        self.pending = moves;
         self.retries += 1;
+        if self.step == Step::Sweeping && self.retries % SHORTEN_AFTER == 0 {
+            if let Some(MoveCommand::Straight { distance_m, .. }) = moves.first_mut() {
+                if distance_m.abs() / 2.0 >= SHORTEST_LEG_M {
+                    *distance_m /= 2.0;
+                }
+            }
+        }
+        self.pending = moves;
         if self.retries > MAX_RETRIES {
             self.step = Step::GaveUp;
             self.pending.clear();
@@ -444,6 +459,41 @@ mod tests {
         on.odometry.x += 0.031;
         assert_eq!(r.poll(&on, &world.track, now), Some(Action::Stop));
         assert!(r.aligned() && !r.gave_up());
+    }
+
+    /// A sweep leg the safety check keeps holding is halved every few holds, so the side it
+    /// points at is searched as far as the robot may go rather than not at all.
+    #[test]
+    fn a_sweep_leg_held_again_and_again_is_shortened() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], ROOM, now);
+        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
+            panic!("sweep");
+        };
+        r.move_finished(true);
+        r.move_finished(true);
+        let mut pending = sweep[2..].to_vec();
+        let mut t = now;
+        let mut legs = Vec::new();
+        for _ in 0..3 * SHORTEN_AFTER {
+            r.held(pending.clone(), t);
+            t += RETRY_AFTER;
+            let Some(Action::Moves(again)) = r.poll(&lost, &world.track, t) else {
+                panic!("tried again");
+            };
+            legs.push(straights(&again)[0]);
+            pending = again;
+        }
+        let n = SHORTEN_AFTER as usize;
+        assert_eq!(legs[0], -0.152, "{legs:?}");
+        assert_eq!(legs[n - 1], -0.076, "{legs:?}");
+        assert_eq!(legs[2 * n - 1], -0.038, "{legs:?}");
+        assert_eq!(legs[3 * n - 1], -0.019, "{legs:?}");
+        // The rest of the sweep still follows, unchanged.
+        assert_eq!(straights(&pending)[1], 0.076);
+        assert!(!r.gave_up());
     }
 
     /// Near the arena's edge the sweep goes only as far as the robot may: the side towards the
