@@ -105,3 +105,30 @@ fn a_pusher_shoved_mid_push_touches_nothing_and_the_run_ends_with_a_verdict() {
         "the run hung: {r}"
     );
 }
+
+/// A pusher picked up on its way to its slot and put down 24 mm nearer the wall and turned 19°:
+/// nothing on it feels that, and the model drives it on its plan; its own reflex stops it short
+/// of the wall (the route keeps it on until the push), and nothing touches.
+#[test]
+fn a_pusher_put_down_nearer_the_wall_is_stopped_by_its_reflex_before_it_touches() {
+    let r = kicked(
+        "cooperative_push",
+        7,
+        "teleport:1:2.0:-0.008,-0.024,19",
+        120,
+    );
+    nothing_touched(&r);
+    // The finder was on its way: it had backed from the box and turned down towards the lane
+    // (the track runs along +x there).
+    let heading = r.kicks[0].from[2];
+    assert!(
+        heading < -0.5,
+        "robot 1 was not on its way to its slot: {r}"
+    );
+    // Undisturbed, the reflex stops only the finder's first approach to the box (twice).
+    assert!(r.reflexes >= 3, "its reflex never stopped it: {r}");
+    assert!(
+        !r.verdict.summary.contains("did not finish"),
+        "the run hung: {r}"
+    );
+}

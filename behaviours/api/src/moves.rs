@@ -135,6 +135,14 @@ impl Legs {
         self.legs.push_back(leg);
     }
 
+    /// Puts a leg before the ones still to drive (a back-off before a held turn); the leg it
+    /// goes before starts afresh after it.
+    pub fn push_front(&mut self, leg: Leg) {
+        self.legs.push_front(leg);
+        self.turns = 0;
+        self.drives = 0;
+    }
+
     /// Whether every leg is done.
     pub fn is_empty(&self) -> bool {
         self.legs.is_empty()

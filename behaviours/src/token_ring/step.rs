@@ -178,6 +178,50 @@ impl TokenRing {
     }
 }
 
+impl TokenRing {
+    /// A move of `id` was held: a robot standing close behind it backs away a little. A robot
+    /// backing out of a box's reach, or turning there, needs room behind it that a follower
+    /// stopped at the follow gap leaves only while both models are sure along the tape; after a
+    /// robot was lost and found, its uncertainty along the tape widens it past that gap, and
+    /// neither would ever move again. The back-off is checked like any move; held in turn, it
+    /// makes room behind itself the same way.
+    fn make_room(&mut self, id: u16, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        let Some(me) = world.robot(id) else {
+            return Vec::new();
+        };
+        let heading = (me.pose.theta.cos(), me.pose.theta.sin());
+        let behind = world.robots.iter().find(|o| {
+            let (dx, dy) = (o.pose.x - me.pose.x, o.pose.y - me.pose.y);
+            let w = o.state.wheels;
+            o.id != id
+                && self.bots.contains_key(&o.id)
+                && dx * heading.0 + dy * heading.1 < 0.0
+                && dx.hypot(dy) < ROOM_NEAR
+                && w.left_mps.abs() < 0.005
+                && w.right_mps.abs() < 0.005
+                && team.idle(o.id)
+                && team.following(o.id).is_none_or(|v| v == 0.0)
+        });
+        let Some(id) = behind.map(|o| o.id) else {
+            return Vec::new();
+        };
+        tracing::debug!(robot = id, "backs away to make room");
+        // Its own held legs (a turn round beside this one) follow the back-off.
+        match self.bots.get_mut(&id) {
+            Some(bot) if !bot.legs.is_empty() => {
+                bot.legs.push_front(Leg::Straight(-ROOM_BACK));
+                self.pump(id, world, team).into_iter().collect()
+            }
+            _ => self.send(id, &[Leg::Straight(-ROOM_BACK)], world, team),
+        }
+    }
+}
+
+/// A robot whose move is held makes the robot behind it back away when their centres are closer
+/// than this (a follower stopped at the follow gap stands 110 mm behind, centre to centre), by this much.
+const ROOM_NEAR: f64 = 0.1;
+const ROOM_BACK: f64 = 0.03;
+
 /// How long after a robot is found lost the moves interrupted are the supervisor's stops.
 const LOST_STOPS: Duration = Duration::from_secs(2);
 
@@ -268,16 +312,17 @@ impl Behaviour for TokenRing {
         &mut self,
         intent: &Intent,
         _reason: &str,
-        _world: &WorldSnapshot,
-        _team: &mut Team,
+        world: &WorldSnapshot,
+        team: &mut Team,
     ) -> Vec<Intent> {
         // A held move never ran: the leg stays, and the next snapshot tries it again.
-        if let Intent::Move { robot, .. } = intent {
-            if let Some(bot) = self.bots.get_mut(robot) {
-                bot.legs.held();
-            }
+        let Intent::Move { robot, .. } = *intent else {
+            return Vec::new();
+        };
+        if let Some(bot) = self.bots.get_mut(&robot) {
+            bot.legs.held();
         }
-        Vec::new()
+        self.make_room(robot, world, team)
     }
 
     fn verdict(&self) -> Option<Verdict> {
