@@ -218,9 +218,9 @@ impl Relocaliser {
     /// again a little later.
     ///
     /// A sweep leg held again and again stands against something that does not go away (often a
-    /// robot that waits for this one's exclusion zone to clear): every [`SHORTEN_AFTER`] holds
-    /// it is halved, down to [`SHORTEST_LEG_M`], so the side towards it is searched as far as
-    /// the safety check lets the robot go instead of not at all.
+    /// robot that waits for this one's exclusion zone to clear): every fourth hold it is halved,
+    /// down to 1 cm, so the side towards it is searched as far as the safety check lets the
+    /// robot go instead of not at all.
     pub fn held(&mut self, mut moves: Vec<MoveCommand>, now: Instant) {
         self.outstanding = self.outstanding.saturating_sub(moves.len());
         self.retries += 1;
