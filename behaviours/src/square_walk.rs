@@ -32,6 +32,8 @@ params! {
     }
 }
 
+/// Less than this by the encoders is no motion at all.
+const NO_MOTION_M: f64 = 0.005;
 /// Per-robot progress.
 #[derive(Clone, Debug)]
 struct Walker {
@@ -217,8 +219,19 @@ impl Behaviour for SquareWalk {
         if self.walkers.is_empty() {
             return None;
         }
-        if let Some((id, _)) = self.walkers.iter().find(|(_, w)| w.failed) {
-            return Some(Verdict::failure(format!("robot {id}: a move was aborted")));
+        if let Some((&id, _)) = self.walkers.iter().find(|(_, w)| w.failed) {
+            // A robot whose encoders count nothing drives on at full duty until something stops
+            // it (its reflex at a wall, before the stall is long enough to name): say so.
+            let measured = self.odometer.distance_m(id);
+            let why = if measured < NO_MOTION_M {
+                format!(
+                    "robot {id}: a move was aborted; its encoders had measured {:.1} mm by then",
+                    measured * 1e3
+                )
+            } else {
+                format!("robot {id}: a move was aborted")
+            };
+            return Some(Verdict::failure(why));
         }
         if let Some(stall) = self.odometer.stall() {
             return Some(Verdict::failure(stall.to_string()));
