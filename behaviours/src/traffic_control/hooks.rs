@@ -190,10 +190,11 @@ impl Behaviour for TrafficControl {
                         self.lose(k, "the world model lost it".into());
                         return Vec::new();
                     }
-                    // Stopped by the supervisor beside a robot it lost, or short of something
-                    // close by its own reflex: the leg goes on from where it stands, held by the
-                    // safety check until the way is clear.
-                    if matches!(outcome, MoveOutcome::Stopped | MoveOutcome::Blocked) {
+                    // Stopped by the supervisor beside a robot it lost: the leg goes on from
+                    // where it stands, held by the safety check until the way is clear. Not
+                    // after its own reflex stopped it: something the model does not know of
+                    // stands close, and driving the leg again touched it.
+                    if *outcome == MoveOutcome::Stopped {
                         if !team.idle(robot) {
                             return Vec::new();
                         }
