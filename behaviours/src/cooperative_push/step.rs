@@ -275,6 +275,8 @@ impl CooperativePush {
                 ));
             }
             self.push_time = Some(world.time.saturating_sub(self.push_started));
+            // Backing onto the tape drives away from the box: the rear reflexes guard it.
+            out.extend(self.reflexes(REFLEX_ON));
             if let Some(f) = self.finder {
                 out.extend(self.start_backing(f));
             }
