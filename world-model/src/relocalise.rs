@@ -407,6 +407,18 @@ mod tests {
         }
     }
 
+    /// The routine started for `lost` in `room` on the 4 × 4 grid, and the sweep it sends once
+    /// the robot has stopped.
+    fn swept(lost: &RobotView, room: ([f64; 2], [f64; 2])) -> (Relocaliser, Vec<MoveCommand>) {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let (mut r, _) = Relocaliser::start(lost, &world.track, &[], room, now);
+        let Some(Action::Moves(sweep)) = r.poll(lost, &world.track, now) else {
+            panic!("a stopped robot sweeps at once");
+        };
+        (r, sweep)
+    }
+
     /// Lost 25 mm beside a tape along x: stop, sweep across it as far as three sigmas, and once
     /// the tape fixes the position, onto it and facing the way the robot drove.
     #[test]
@@ -468,10 +480,7 @@ mod tests {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let lost = view(0.3, 0.225, 0.1);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], ROOM, now);
-        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
-            panic!("sweep");
-        };
+        let (mut r, sweep) = swept(&lost, ROOM);
         r.move_finished(true);
         r.move_finished(true);
         let mut pending = sweep[2..].to_vec();
@@ -500,15 +509,9 @@ mod tests {
     /// wall is searched up to it, the other side in full.
     #[test]
     fn a_sweep_by_the_wall_stops_at_the_room_the_robot_has() {
-        let world = presets::grid(4, 4, 1);
-        let now = Instant::now();
         // Lost beside the tape at y = 0.2, its centre allowed no lower than y = 0.18.
         let lost = view(0.3, 0.205, 0.0);
-        let room = ([0.05, 0.18], [1.0, 1.0]);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], room, now);
-        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
-            panic!("sweep");
-        };
+        let (_, sweep) = swept(&lost, ([0.05, 0.18], [1.0, 1.0]));
         let legs = straights(&sweep[1..]);
         // Facing +y or -y: the side towards y = 0.18 has 25 mm, the other the full 76 mm.
         let (up, down) = if legs[0] > 0.05 {
@@ -524,13 +527,8 @@ mod tests {
     /// A sweep that ends without a tape gives up: the robot stays where it stopped.
     #[test]
     fn a_sweep_that_finds_nothing_gives_up() {
-        let world = presets::grid(4, 4, 1);
-        let now = Instant::now();
         let lost = view(0.3, 0.3, 0.0);
-        let (mut r, _) = Relocaliser::start(&lost, &world.track, &[], ROOM, now);
-        let Some(Action::Moves(sweep)) = r.poll(&lost, &world.track, now) else {
-            panic!("sweep");
-        };
+        let (mut r, sweep) = swept(&lost, ROOM);
         // The stop's aborted moves do not count.
         r.move_finished(false);
         for _ in &sweep {
