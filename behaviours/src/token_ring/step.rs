@@ -218,7 +218,8 @@ impl TokenRing {
 }
 
 /// A robot whose move is held makes the robot behind it back away when their centres are closer
-/// than this (a follower stopped at the follow gap stands 110 mm behind, centre to centre), by this much.
+/// than this (a follower stopped at the follow gap stands 110 mm behind, centre to centre), by
+/// this much.
 const ROOM_NEAR: f64 = 0.1;
 const ROOM_BACK: f64 = 0.03;
 
