@@ -106,6 +106,20 @@ fn a_pusher_shoved_mid_push_touches_nothing_and_the_run_ends_with_a_verdict() {
     );
 }
 
+/// The finder shoved 12 mm along the track and turned 10° as it backs from the box it pushed
+/// clear: it feels the bump and is found on the tape again; the team stops, gets back onto the
+/// tape one robot after the other (the helper backing from beside the box) and laps, and nothing
+/// touches. Before, the run ended at the bump.
+#[test]
+fn a_pusher_shoved_after_the_push_is_found_and_the_team_rejoins_the_tape() {
+    let r = kicked("cooperative_push", 7, "shove:1:19.0:0.012,0.0,10", 120);
+    nothing_touched(&r);
+    // Pushed clear before the kick: the box moved and both sensors crossed its tape.
+    assert!(r.obstacles[0].moved_m > 0.1, "{r}");
+    assert!(kicked_robot(&r).localisation.lost_episodes >= 1, "{r}");
+    assert!(r.success(), "{r}");
+}
+
 /// A pusher picked up on its way to its slot and put down 24 mm nearer the wall and turned 19°:
 /// nothing on it feels that, and the model drives it on its plan; its own reflex stops it short
 /// of the wall (the route keeps it on until the push), and nothing touches.

@@ -3,9 +3,11 @@
 //! be beside and puts the robot back on it, facing the way it drove:
 //!
 //! 1. wait for the wheels to stop;
-//! 2. face across the tape and creep to one side, then back through to the other, as far as the
-//!    model's uncertainty reaches (the model fixes the position across the first tape the
-//!    sensor sees, see [`crate::model::Transition::Fixed`]);
+//! 2. face across the tape (whichever way is nearer the robot's heading) and creep first towards
+//!    the side the model puts the tape on, through it, then back through to the other side, as
+//!    far as the model's uncertainty reaches beyond the tape and beyond the model's mean (the
+//!    model fixes the position across the first tape the sensor sees, see
+//!    [`crate::model::Transition::Fixed`]);
 //! 3. stop there, drive the centre onto the tape and face along it;
 //! 4. follow the tape with the firmware's line follower for a few centimetres: the follower
 //!    steers the robot along the tape whatever its heading was off by (a bump turns a robot by
@@ -86,8 +88,9 @@ enum After {
 pub struct Relocaliser {
     /// The robot.
     pub robot: u16,
-    /// Unit tangent of the tape nearest to where the robot was lost.
+    /// Unit tangent of the tape nearest to where the robot was lost, and that nearest point.
     tape: Vector2<f64>,
+    tape_at: Point2<f64>,
     /// Heading when it was lost: it faces the same way along the tape afterwards.
     heading: f64,
     /// How far to each side the sweep goes.
@@ -121,7 +124,9 @@ impl Relocaliser {
     ) -> (Self, Action) {
         let centre = Point2::new(view.pose.x, view.pose.y);
         let heading = Vector2::new(view.pose.theta.cos(), view.pose.theta.sin());
-        let tape = track.nearest(centre).map_or(heading, |n| n.tangent);
+        let nearest = track.nearest(centre);
+        let tape = nearest.as_ref().map_or(heading, |n| n.tangent);
+        let tape_at = nearest.map_or(centre, |n| n.point);
         // Inside a junction zone no sighting is taken as a fix (its tapes run too close to
         // tell apart), so a sweep there finds nothing however often it is tried: the search
         // first drives along the tape out of the zone, away from the junction.
@@ -148,6 +153,7 @@ impl Relocaliser {
             Self {
                 robot: view.id,
                 tape,
+                tape_at,
                 heading: view.pose.theta,
                 reach_m,
                 leave,
@@ -208,7 +214,9 @@ impl Relocaliser {
     }
 
     /// The robot's proximity reflex stopped one of the routine's moves (and dropped the rest):
-    /// something stands close in its way, and this search cannot go on from here.
+    /// something stands close in its way, and this search cannot go on from here. (Searching the
+    /// other side from there drove a pusher stopped by the box back into its neighbour: the
+    /// search's moves are checked with the lost robot's 1σ.)
     pub fn blocked(&mut self) {
         self.outstanding = 0;
         self.give_up();
@@ -293,10 +301,11 @@ impl Relocaliser {
         Some(Action::Moves(moves))
     }
 
-    /// Face across the tape, then out to one side, back through to the other, and back. The
-    /// sensor leads the centre by 16 mm, so each leg goes that much farther: the sensor then
-    /// covers the reach on both sides. Near the arena's edge a side is searched only as far as
-    /// the robot can go (the safety check would hold the whole leg).
+    /// Face across the tape, the way nearer the robot's heading; out to the side the model puts
+    /// the tape on, through it as far as the reach, back through to the reach on the other side,
+    /// and back. The sensor leads the centre by 16 mm, so each leg goes that much farther: the
+    /// sensor then covers the reach on both sides. Near the arena's edge a side is searched only
+    /// as far as the robot can go (the safety check would hold the whole leg).
     fn sweep(&self, pose: Pose) -> Vec<MoveCommand> {
         let across = Vector2::new(-self.tape.y, self.tape.x);
         let reach = self.reach_m + LINE_SENSOR_AHEAD_M;
@@ -313,13 +322,29 @@ impl Relocaliser {
                 at = [at[0] + away.x * by, at[1] + away.y * by];
             }
         }
-        let out = reach.min(room_along(at, [across.x, across.y], self.room)) as f32;
-        let back = reach.min(room_along(at, [-across.x, -across.y], self.room)) as f32;
+        // Turning the short way keeps the corners' sweep away from a robot beside this one.
+        let heading = Vector2::new(theta.cos(), theta.sin());
+        let dir = if heading.dot(&across) >= 0.0 {
+            across
+        } else {
+            -across
+        };
+        // A robot lost well off the tape (beside a box it pushed) is searched for up to the
+        // tape and beyond it, the way it is most likely to be, before the other side.
+        let start = Point2::new(at[0], at[1]);
+        let to_tape = (self.tape_at - start).dot(&dir);
+        let ahead = (to_tape.max(0.0) + reach).min(room_along(at, [dir.x, dir.y], self.room));
+        let behind = (reach - to_tape.min(0.0)).min(room_along(at, [-dir.x, -dir.y], self.room));
+        let (first, second) = if to_tape >= 0.0 {
+            (ahead, -behind)
+        } else {
+            (-behind, ahead)
+        };
         moves.extend([
-            turn_to(theta, across.y.atan2(across.x)),
-            straight(out),
-            straight(-(out + back)),
-            straight(back),
+            turn_to(theta, dir.y.atan2(dir.x)),
+            straight(first as f32),
+            straight((second - first) as f32),
+            straight(-second as f32),
         ]);
         moves
     }
@@ -419,8 +444,9 @@ mod tests {
         (r, sweep)
     }
 
-    /// Lost 25 mm beside a tape along x: stop, sweep across it as far as three sigmas, and once
-    /// the tape fixes the position, onto it and facing the way the robot drove.
+    /// Lost 25 mm beside a tape along x: stop, sweep across it towards the tape first, as far as
+    /// three sigmas beyond it, and once the tape fixes the position, onto it and facing the way
+    /// the robot drove.
     #[test]
     fn the_routine_sweeps_across_the_tape_then_puts_the_robot_back_on_it() {
         let world = presets::grid(4, 4, 1);
@@ -434,10 +460,12 @@ mod tests {
         let MoveCommand::Rotate { angle_deg, .. } = sweep[0] else {
             panic!("{sweep:?}");
         };
-        // The tape runs along x: face across it (±90°) from a heading of 0.1 rad.
-        assert!(((angle_deg.abs() - 90.0) as f64 - 0.1f64.to_degrees()).abs() < 12.0);
+        // The tape runs along x: from a heading of 0.1 rad, face +y, the nearer way across it.
+        assert!((f64::from(angle_deg) - (90.0 - 0.1f64.to_degrees())).abs() < 1e-3);
+        // The tape is 25 mm behind: back through it to 60 mm (3σ) and the sensor's 16 mm
+        // beyond, then forwards to as far on the other side of the model's mean, and back.
         let reaches = straights(&sweep[1..]);
-        assert_eq!(reaches, vec![0.076, -0.152, 0.076]);
+        assert_eq!(reaches, vec![-0.101, 0.177, -0.076]);
         // The tape is found: stop, then align from the fixed pose (facing +y, centre 16 mm
         // below the tape at y = 0.2).
         assert_eq!(r.fixed(now), Action::Stop);
@@ -484,6 +512,7 @@ mod tests {
         r.move_finished(true);
         r.move_finished(true);
         let mut pending = sweep[2..].to_vec();
+        let through = straights(&pending)[0];
         let mut t = now;
         let mut legs = Vec::new();
         for _ in 0..3 * SHORTEN_AFTER {
@@ -496,12 +525,12 @@ mod tests {
             pending = again;
         }
         let n = SHORTEN_AFTER as usize;
-        assert_eq!(legs[0], -0.152, "{legs:?}");
-        assert_eq!(legs[n - 1], -0.076, "{legs:?}");
-        assert_eq!(legs[2 * n - 1], -0.038, "{legs:?}");
-        assert_eq!(legs[3 * n - 1], -0.019, "{legs:?}");
+        assert_eq!(legs[0], through, "{legs:?}");
+        assert_eq!(legs[n - 1], through / 2.0, "{legs:?}");
+        assert_eq!(legs[2 * n - 1], through / 4.0, "{legs:?}");
+        assert_eq!(legs[3 * n - 1], through / 8.0, "{legs:?}");
         // The rest of the sweep still follows, unchanged.
-        assert_eq!(straights(&pending)[1], 0.076);
+        assert_eq!(straights(&pending)[1], straights(&sweep[3..])[0]);
         assert!(!r.gave_up());
     }
 
@@ -513,15 +542,28 @@ mod tests {
         let lost = view(0.3, 0.205, 0.0);
         let (_, sweep) = swept(&lost, ([0.05, 0.18], [1.0, 1.0]));
         let legs = straights(&sweep[1..]);
-        // Facing +y or -y: the side towards y = 0.18 has 25 mm, the other the full 76 mm.
-        let (up, down) = if legs[0] > 0.05 {
-            (legs[0], legs[2])
-        } else {
-            (legs[2], legs[0])
-        };
-        assert!((up - 0.076).abs() < 1e-4, "{legs:?}");
-        assert!((down - 0.025).abs() < 1e-4, "{legs:?}");
-        assert!((legs[1] + up + down).abs() < 1e-4, "{legs:?}");
+        // Facing +y: first down towards the tape, which the side towards y = 0.18 leaves 25 mm
+        // for, then up to the full 76 mm.
+        let expected = [-0.025, 0.101, -0.076];
+        assert!(
+            legs.iter().zip(expected).all(|(l, e)| (l - e).abs() < 1e-4),
+            "{legs:?}"
+        );
+    }
+
+    /// A robot lost 10 cm beside the tape (beside a box it pushed) is searched for up to the
+    /// tape and beyond it first, then as far on its other side.
+    #[test]
+    fn a_robot_lost_well_off_the_tape_is_searched_for_towards_it_first() {
+        // The tape along y = 0.2 lies 10 cm below; the robot faces +y.
+        let lost = view(0.3, 0.3, 1.5);
+        let (_, sweep) = swept(&lost, ROOM);
+        let legs = straights(&sweep[1..]);
+        let expected = [-0.176, 0.252, -0.076];
+        assert!(
+            legs.iter().zip(expected).all(|(l, e)| (l - e).abs() < 1e-4),
+            "to the tape and 76 mm beyond, then 76 mm beyond the mean: {legs:?}"
+        );
     }
 
     /// A sweep that ends without a tape gives up: the robot stays where it stopped.

@@ -116,15 +116,22 @@ impl CooperativePush {
     /// After the push: back up until the line sensor finds the tape. Odometry cannot say how far
     /// that is, because the wheels slipped while pushing; the tape can.
     pub(super) fn start_backing(&mut self, id: u16) -> Vec<Intent> {
+        self.onto_tape(id, false)
+    }
+
+    /// Drive straight, backwards or `forwards`, until the line sensor crosses the tape.
+    pub(super) fn onto_tape(&mut self, id: u16, forwards: bool) -> Vec<Intent> {
         let Some(bot) = self.bots.get_mut(&id) else {
             return Vec::new();
         };
         bot.backing = Some(Duration::ZERO);
         bot.backing_odometer_m = self.odometer.distance_m(id);
+        bot.onto_forwards = forwards;
+        let v = if forwards { BACK_MPS } else { -BACK_MPS };
         vec![Intent::WheelSpeeds {
             robot: id,
-            left: -BACK_MPS,
-            right: -BACK_MPS,
+            left: v,
+            right: v,
         }]
     }
 
@@ -134,17 +141,22 @@ impl CooperativePush {
         self.odometer.distance_m(id) - from
     }
 
-    /// The sensor (16 mm ahead of the centre) has just crossed the tape backwards: stop, bring
-    /// the centre onto the tape and face along it.
+    /// The sensor (16 mm ahead of the centre) has just crossed the tape: stop, bring the centre
+    /// onto the tape and face along it.
     pub(super) fn on_tape(&mut self, id: u16, world: &WorldSnapshot) -> Vec<Intent> {
         let (Some(site), Some(view)) = (self.site, world.robot(id)) else {
             return Vec::new();
         };
+        let mut overshoot = BACK_OVERSHOOT;
         if let Some(bot) = self.bots.get_mut(&id) {
             bot.backing = None;
+            bot.rejoined = true;
+            if bot.onto_forwards {
+                overshoot = -BACK_OVERSHOOT;
+            }
         }
         let route = Manoeuvre::from(view.pose, MANOEUVRE_MPS)
-            .straight(SENSOR_AHEAD + BACK_OVERSHOOT)
+            .straight(SENSOR_AHEAD + overshoot)
             .turn_to(Site::heading(site.along));
         let mut out = vec![Intent::Stop { robot: id }];
         out.extend(self.send(id, route));
@@ -158,6 +170,8 @@ impl CooperativePush {
         let ids: Vec<u16> = self.bots.keys().copied().collect();
         for (&id, b) in self.bots.iter_mut() {
             b.push_odometer_m = self.odometer.distance_m(id);
+            b.crossed_tape = false;
+            b.rejoined = false;
         }
         // The reflexes go off before the push drives into the box: a setting written before a
         // move reaches the robot first on the same link. One command per robot in the same

@@ -9,7 +9,9 @@
 //! safety check held, an aborted manoeuvre) does not end the run: the team stops, drives back onto
 //! the tape behind the box one robot after the other, and finds it again, at most three times;
 //! then the run fails with what went wrong. From the push on, the pushers' slip under the box is
-//! unmeasured until the tape finds them, so a disturbance then ends the run.
+//! unmeasured until the tape finds them: after a disturbance then, each robot gets back onto the
+//! tape where it stands, in turn, and the team laps; a push cut short counts only if the box gave
+//! way to every pusher, and otherwise the laps find the box again for another push.
 //!
 //! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
 //! robot ahead in the world model creeps, and stops at the first reflection at the weakest power
@@ -42,6 +44,7 @@ use behaviour_api::{
 
 mod manoeuvres;
 mod regroup;
+mod rejoin;
 mod step;
 
 /// Half the body length, metres.
@@ -114,8 +117,11 @@ enum Phase {
     HelperRejoins,
     /// Both follow the track again.
     Lapping,
-    /// After a disturbance: back onto the tape behind the box, one after the other.
+    /// After a disturbance before the push: back onto the tape behind the box, one after the
+    /// other.
     Regroup,
+    /// After a disturbance from the push on: each robot onto the tape where it stands, in turn.
+    Rejoin,
 }
 
 /// Where the box is: its estimated centre, the tape's direction there and the push direction.
@@ -150,10 +156,14 @@ struct Bot {
     backing: Option<Duration>,
     /// The odometer's reading when backing began.
     backing_odometer_m: f64,
+    /// Driving forwards onto the tape rather than backing (a rejoin from short of it).
+    onto_forwards: bool,
     /// The line sensor crossed the tape during the push: the box gave way.
     crossed_tape: bool,
     /// On its route into its slot, whose last leg the robot's reflex may end short of the box.
     seeking: bool,
+    /// Back on the tape after the push, facing along it.
+    rejoined: bool,
 }
 
 /// The cooperative pushing behaviour.

@@ -33,11 +33,11 @@ impl CooperativePush {
         // From the push on, the pushers' wheels have slipped under the box by an amount nothing
         // measures until their sensors find the tape again (a push the box did not give way to
         // leaves the model up to 15 cm ahead of them): a route planned from such a pose backed
-        // robots into the wall. Only the tape can take them back, and the run ends instead.
-        if matches!(
-            self.phase,
-            Phase::Push | Phase::FinderRejoins | Phase::HelperWaits | Phase::HelperRejoins
-        ) {
+        // robots into the wall. A held move or a stop there is a model that disagrees with
+        // what stands around the robots, unseen (a pusher put down turned, which nothing
+        // feels): driving on beside each other on it touched, and the run ends instead. A robot
+        // lost (a felt bump) is searched for, and the team rejoins the tape ([`Self::rejoin`]).
+        if self.after_push() {
             return self.fail(why);
         }
         self.regroups += 1;
@@ -79,6 +79,10 @@ impl CooperativePush {
         world: &WorldSnapshot,
         team: &Team,
     ) -> Vec<Intent> {
+        // Wherever it was, it is not on the tape as the team last knew it.
+        if let Some(b) = self.bots.get_mut(&id) {
+            b.rejoined = false;
+        }
         match self.phase {
             Phase::Approach | Phase::Lapping => Vec::new(),
             // Already regrouping: its route, if it had one, is planned again once it is found.
@@ -86,8 +90,24 @@ impl CooperativePush {
                 self.routed.retain(|r| *r != id);
                 Vec::new()
             }
+            // The team stops (the supervisor stopped those moving near it) and starts again.
+            _ if self.after_push() => {
+                self.rejoin(format!("robot {id} was lost ({why})"), world, team)
+            }
             _ => self.regroup(format!("robot {id} was lost ({why})"), world, team),
         }
+    }
+
+    /// From the push on: the pushers' poses are off by their unmeasured slip.
+    pub(super) fn after_push(&self) -> bool {
+        matches!(
+            self.phase,
+            Phase::Push
+                | Phase::FinderRejoins
+                | Phase::HelperWaits
+                | Phase::HelperRejoins
+                | Phase::Rejoin
+        )
     }
 
     /// One step of the regroup: once every robot is tracked and at rest, each in turn (the one
@@ -179,12 +199,14 @@ impl CooperativePush {
 
     /// Everyone stands on the tape: follow it again until someone finds the box, or, when a push
     /// the box gave way to was done already, lap.
-    fn follow_again(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+    pub(super) fn follow_again(&mut self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         self.finder = None;
         self.site = None;
         self.sighted = None;
         self.routed.clear();
-        if self.push_time.is_some() {
+        // After a push, even one cut short, the laps find the box if it still stands on the
+        // track.
+        if self.pushes > 0 {
             for b in self.bots.values_mut() {
                 b.lapped_m = 0.0;
                 b.last_s = None;

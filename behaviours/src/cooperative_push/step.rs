@@ -34,6 +34,7 @@ impl CooperativePush {
             Phase::Push => self.pushed(world, team),
             Phase::HelperWaits => Ok(self.helper_waits(world)),
             Phase::Regroup => Ok(self.regrouping(world, team)),
+            Phase::Rejoin => Ok(self.rejoining(world, team)),
             // The verdict ends the run: the spacing intents of this step are not sent.
             Phase::Lapping => match self.lapping(world) {
                 Ok(true) => return Vec::new(),
@@ -55,7 +56,7 @@ impl CooperativePush {
         if let Some(stall) = self.odometer.stall() {
             return Some(stall.to_string());
         }
-        if self.phase == Phase::Regroup {
+        if matches!(self.phase, Phase::Regroup | Phase::Rejoin) {
             // A regroup has its own reason, which the phase limit's message would hide.
             if world.time.saturating_sub(self.phase_since) > PHASE_LIMIT {
                 return Some(format!(
@@ -106,7 +107,12 @@ impl CooperativePush {
             let seen = self.interrupts_seen.entry(id).or_insert((0, 0));
             let (interrupted, blocked) = (now.0 > seen.0, now.1 > seen.1);
             *seen = now;
-            if self.phase == Phase::Regroup || !(interrupted || blocked) {
+            // A regroup stops robots itself; a rejoin's own stops interrupt moves too, but its
+            // reflexes are on again, and one that stops a robot is a new disturbance.
+            if self.phase == Phase::Regroup
+                || !(interrupted || blocked)
+                || (self.phase == Phase::Rejoin && !blocked)
+            {
                 continue;
             }
             // The reflex ends the leg up into the slot at the box: that is the leg's end.
@@ -248,32 +254,7 @@ impl CooperativePush {
     ) -> Result<Vec<Intent>, String> {
         let mut out = Vec::new();
         if team.all_idle() {
-            // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run
-            // over the tape it stood on; wheels that only slipped did not.
-            if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
-                return Err(format!(
-                    "the box did not give way: robot {id} never reached the tape behind it \
-                     ({} robot(s) pushing)",
-                    self.bots.len()
-                ));
-            }
-            // The box can give way to one robot's push while the other only stood
-            // beside it: each must have driven its share.
-            let sent = LANE_GAP + self.push_m;
-            let odometer = &self.odometer;
-            let short = self.bots.iter().find_map(|(&id, b)| {
-                let driven = odometer.distance_m(id) - b.push_odometer_m;
-                (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
-            });
-            if let Some((id, driven)) = short {
-                return Err(format!(
-                    "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm \
-                     push it was sent (at least {:.0} mm needed)",
-                    driven * 1e3,
-                    sent * 1e3,
-                    EVIDENCE_SHARE * sent * 1e3
-                ));
-            }
+            self.push_evidence()?;
             self.push_time = Some(world.time.saturating_sub(self.push_started));
             // Backing onto the tape drives away from the box: the rear reflexes guard it.
             out.extend(self.reflexes(REFLEX_ON));
@@ -283,6 +264,38 @@ impl CooperativePush {
             self.enter(Phase::FinderRejoins, world);
         }
         Ok(out)
+    }
+
+    /// Whether the push did its work: the box gave way to every pusher, and each drove its
+    /// share of the push; the error says what is missing.
+    pub(super) fn push_evidence(&self) -> Result<(), String> {
+        // A box that gave way let the pushers' sensors, 8 mm behind their fronts, run over the
+        // tape it stood on; wheels that only slipped did not.
+        if let Some((id, _)) = self.bots.iter().find(|(_, b)| !b.crossed_tape) {
+            return Err(format!(
+                "the box did not give way: robot {id} never reached the tape behind it \
+                 ({} robot(s) pushing)",
+                self.bots.len()
+            ));
+        }
+        // The box can give way to one robot's push while the other only stood beside it: each
+        // must have driven its share.
+        let sent = LANE_GAP + self.push_m;
+        let odometer = &self.odometer;
+        let short = self.bots.iter().find_map(|(&id, b)| {
+            let driven = odometer.distance_m(id) - b.push_odometer_m;
+            (driven < EVIDENCE_SHARE * sent).then_some((id, driven))
+        });
+        if let Some((id, driven)) = short {
+            return Err(format!(
+                "robot {id} did not push: its encoders measured {:.0} mm of the {:.0} mm push \
+                 it was sent (at least {:.0} mm needed)",
+                driven * 1e3,
+                sent * 1e3,
+                EVIDENCE_SHARE * sent * 1e3
+            ));
+        }
+        Ok(())
     }
 
     /// The helper backs onto the tape once the finder has left it room.
@@ -323,6 +336,13 @@ impl CooperativePush {
             }
         }
         if self.bots.values().all(|b| b.lapped_m >= self.laps * length) {
+            if self.push_time.is_none() {
+                return Err(format!(
+                    "the box is off the track, but the push that moved it was cut short \
+                     before it did its work ({})",
+                    self.regroup_why.as_deref().unwrap_or("a disturbance")
+                ));
+            }
             let claimed = self.laps * length;
             let lapped = |id: u16| {
                 let from = self.bots.get(&id).and_then(|b| b.lap_odometer_m);
@@ -417,7 +437,8 @@ impl Behaviour for CooperativePush {
                 }
             }
             Event::LineFound if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) => {
-                if self.backed_m(robot) >= MIN_BACK_M {
+                let forwards = self.bots.get(&robot).is_some_and(|b| b.onto_forwards);
+                if forwards || self.backed_m(robot) >= MIN_BACK_M {
                     self.on_tape(robot, world)
                 } else {
                     Vec::new()
@@ -428,6 +449,20 @@ impl Behaviour for CooperativePush {
                     b.crossed_tape = true;
                 }
                 Vec::new()
+            }
+            // On its way onto the tape, the robot met something close: stopped there, it cannot
+            // find the tape that way.
+            Event::Reflexed { .. }
+                if self.bots.get(&robot).is_some_and(|b| b.backing.is_some()) =>
+            {
+                if let Some(b) = self.bots.get_mut(&robot) {
+                    b.backing = None;
+                }
+                self.regroup(
+                    format!("robot {robot}'s reflex stopped it on its way onto the tape"),
+                    world,
+                    team,
+                )
             }
             Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
@@ -447,11 +482,20 @@ impl Behaviour for CooperativePush {
         world: &WorldSnapshot,
         team: &mut Team,
     ) -> Vec<Intent> {
-        let Intent::Move { robot, .. } = *intent else {
-            return Vec::new();
+        let robot = match *intent {
+            Intent::Move { robot, .. } => robot,
+            Intent::WheelSpeeds { robot, .. } if self.phase == Phase::Rejoin => {
+                self.rejoin_held(robot, world);
+                return Vec::new();
+            }
+            _ => return Vec::new(),
         };
         // The rest of the manoeuvre may have been approved: the robot must not drive it alone.
         let stop = vec![Intent::Stop { robot }];
+        if self.phase == Phase::Rejoin {
+            self.rejoin_held(robot, world);
+            return stop;
+        }
         if self.phase == Phase::Regroup {
             self.route_held(robot, world);
             return stop;

@@ -139,6 +139,11 @@ impl Supervisor {
             if view.localisation == behaviours::Localisation::Tracking {
                 info!(robot = id, "robot re-localised");
                 self.relocalising.remove(&id);
+                // The routine's last word stops its follow along the tape: the robot waits for
+                // its behaviour, which hears it was found, rather than follow on unasked.
+                if let Some(action) = action {
+                    self.act(id, action, &world);
+                }
                 self.tell(id, LocalisationEvent::Found, ctx);
                 return;
             }
