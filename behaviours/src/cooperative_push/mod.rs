@@ -9,9 +9,10 @@
 //! safety check held, an aborted manoeuvre) does not end the run: the team stops, drives back onto
 //! the tape behind the box one robot after the other, and finds it again, at most three times;
 //! then the run fails with what went wrong. From the push on, the pushers' slip under the box is
-//! unmeasured until the tape finds them: after a disturbance then, each robot gets back onto the
-//! tape where it stands, in turn, and the team laps; a push cut short counts only if the box gave
-//! way to every pusher, and otherwise the laps find the box again for another push.
+//! unmeasured until the tape finds them: a robot lost then (a felt bump) is searched for, each
+//! robot gets back onto the tape where it stands, in turn, and the team laps; a push cut short
+//! counts only if the box gave way to every pusher, and otherwise the laps find the box again for
+//! another push. A held move or an aborted one then ends the run.
 //!
 //! The box is found by the front IR receiver: a robot with a reflection ahead (within 50 mm) and no
 //! robot ahead in the world model creeps, and stops at the first reflection at the weakest power
