@@ -119,6 +119,8 @@ pub struct TokenRing {
     /// robots moving near it, whose detours and turns go on from where they stand once it is
     /// found.
     forgive_until: Duration,
+    /// When each robot last backed away to make room.
+    room_made: BTreeMap<u16, Duration>,
     odometer: Odometer,
     verdict: Option<Verdict>,
 }
@@ -165,6 +167,7 @@ impl Register for TokenRing {
             detours: 0,
             last_pass: Duration::ZERO,
             forgive_until: Duration::ZERO,
+            room_made: BTreeMap::new(),
             odometer: Odometer::new(),
             verdict: None,
         })

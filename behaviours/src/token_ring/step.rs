@@ -193,9 +193,17 @@ impl TokenRing {
         let behind = world.robots.iter().find(|o| {
             let (dx, dy) = (o.pose.x - me.pose.x, o.pose.y - me.pose.y);
             let w = o.state.wheels;
+            let (c, s) = (o.pose.theta.cos(), o.pose.theta.sin());
             o.id != id
                 && self.bots.contains_key(&o.id)
                 && dx * heading.0 + dy * heading.1 < 0.0
+                // It backs away from this one: two standing back to back would each back into
+                // the other, held in turn for ever.
+                && dx * c + dy * s < 0.0
+                && self
+                    .room_made
+                    .get(&o.id)
+                    .is_none_or(|&t| world.time >= t + ROOM_EVERY)
                 && dx.hypot(dy) < ROOM_NEAR
                 && w.left_mps.abs() < 0.005
                 && w.right_mps.abs() < 0.005
@@ -206,6 +214,7 @@ impl TokenRing {
             return Vec::new();
         };
         tracing::debug!(robot = id, "backs away to make room");
+        self.room_made.insert(id, world.time);
         // Its own held legs (a turn round beside this one) follow the back-off.
         match self.bots.get_mut(&id) {
             Some(bot) if !bot.legs.is_empty() => {
@@ -222,6 +231,9 @@ impl TokenRing {
 /// this much.
 const ROOM_NEAR: f64 = 0.1;
 const ROOM_BACK: f64 = 0.03;
+/// A robot backs away to make room at most this often: a held back-off makes room behind itself
+/// in the same instant, and a chain of them must end.
+const ROOM_EVERY: Duration = Duration::from_secs(1);
 
 /// How long after a robot is found lost the moves interrupted are the supervisor's stops.
 const LOST_STOPS: Duration = Duration::from_secs(2);
@@ -332,5 +344,87 @@ impl Behaviour for TokenRing {
 
     fn progress(&self) -> Vec<(String, f64)> {
         vec![("passes".into(), f64::from(self.passes))]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use behaviour_api::testing::{world as snapshot, Harness};
+    use behaviour_api::{MoveCommand, Register};
+    use std::sync::Arc;
+    use world::presets;
+
+    /// Robot 1 stands on the oval's lower straight facing +x, robot 2 8 cm behind it facing
+    /// `heading2`; both still, neither following.
+    fn standing(heading2: f64) -> (Harness<TokenRing>, WorldSnapshot) {
+        let cfg = BehaviourConfig {
+            robots: vec![1, 2],
+            track: Arc::new(presets::preset("oval").unwrap().track),
+            ..Default::default()
+        };
+        let ring = TokenRing::build(Default::default(), &cfg).unwrap();
+        let on = |x: f64| cfg.track.nearest(nalgebra::Point2::new(x, 0.15)).unwrap();
+        let (a, b) = (on(0.40), on(0.32));
+        let at = |t: f64| {
+            snapshot()
+                .arena(1.0, 0.6)
+                .robot(1, 0.40, 0.15, 0.0)
+                .robot(2, 0.32, 0.15, heading2)
+                .on_track(1, a.edge, a.offset_m)
+                .on_track(2, b.edge, b.offset_m)
+                .at(t)
+                .build()
+        };
+        let mut h = Harness::new(ring);
+        h.start(&at(0.0));
+        for id in [1, 2] {
+            h.event(id, Event::WatchdogStop, &at(0.0));
+        }
+        // Standing still long enough to have settled.
+        h.snapshot(&at(0.1));
+        let world = at(2.0);
+        h.snapshot(&world);
+        (h, world)
+    }
+
+    fn held_step(robot: u16) -> Intent {
+        Intent::Move {
+            robot,
+            command: MoveCommand::Straight {
+                distance_m: -0.02,
+                speed_mps: 0.05,
+            },
+            tag: 0,
+        }
+    }
+
+    fn backs_away(intents: &[Intent], robot: u16) -> bool {
+        intents.iter().any(|i| {
+            matches!(i, Intent::Move { robot: r, command: MoveCommand::Straight { distance_m, .. }, .. }
+                if *r == robot && *distance_m < 0.0)
+        })
+    }
+
+    /// A held move makes the robot standing close behind back away, once in a while.
+    #[test]
+    fn a_held_move_makes_the_robot_behind_back_away() {
+        let (mut h, world) = standing(0.0);
+        let out = h.hold(held_step(1), "in the way", &world);
+        assert!(backs_away(&out, 2), "{out:?}");
+        let again = h.hold(held_step(1), "in the way", &world);
+        assert!(
+            !backs_away(&again, 2),
+            "backs away again at once: {again:?}"
+        );
+    }
+
+    /// Two robots back to back: backing away would drive each into the other, and each held
+    /// back-off made room for the other's in the same instant, for ever.
+    #[test]
+    fn a_robot_behind_facing_away_does_not_back_into_the_held_one() {
+        let (mut h, world) = standing(180.0);
+        let out = h.hold(held_step(1), "in the way", &world);
+        assert!(!backs_away(&out, 2), "{out:?}");
     }
 }
