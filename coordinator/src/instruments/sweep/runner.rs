@@ -170,7 +170,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         let _ = std::fs::remove_file(r);
     }
     let mut cmd = command(definition, options, spec, &report, recording.as_deref());
-    die_with_parent(&mut cmd);
+    guard_child(&mut cmd, RUN_FILE_LIMIT);
     let status: std::io::Result<ExitStatus> = File::create(&log).and_then(|f| {
         cmd.stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -200,9 +200,7 @@ fn execute(definition: &Definition, options: &Options, spec: &RunSpec) -> RunRes
         Some(code) => {
             result.summary = format!("exit status {code}: {}", stderr_reason(&log));
         }
-        None => {
-            result.summary = format!("ended by a signal ({status}): {}", stderr_reason(&log));
-        }
+        None => result.summary = signal_reason(status, &log),
     }
     if let Some(r) = &recording {
         if result.success() {
@@ -342,15 +340,27 @@ fn stderr_reason(log: &Path) -> String {
     reason.chars().take(300).collect()
 }
 
+/// The most a run may write to any one file (its log, report or recording). A run that never
+/// ended once logged the same held move for ever and filled a 250 GB disk in minutes; past this
+/// the kernel ends it with `SIGXFSZ`, and the sweep goes on.
+const RUN_FILE_LIMIT: u64 = 2 << 30;
+
 /// Ends the child when the sweep dies, so a killed sweep leaves no run writing into its directory
-/// behind the next one.
+/// behind the next one, and when one of its files grows past `file_limit` bytes.
 #[cfg(target_os = "linux")]
-fn die_with_parent(cmd: &mut Command) {
+fn guard_child(cmd: &mut Command, file_limit: u64) {
     use std::os::unix::process::CommandExt;
-    // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+    // SAFETY: prctl and setrlimit are async-signal-safe and touch no memory of the parent.
     unsafe {
-        cmd.pre_exec(|| {
+        cmd.pre_exec(move || {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            let limit = libc::rlimit {
+                rlim_cur: file_limit,
+                rlim_max: file_limit,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) == -1 {
                 return Err(std::io::Error::last_os_error());
             }
             Ok(())
@@ -359,7 +369,42 @@ fn die_with_parent(cmd: &mut Command) {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn die_with_parent(_cmd: &mut Command) {}
+fn guard_child(_cmd: &mut Command, _file_limit: u64) {}
+
+/// Why a run ended by a signal, in words.
+fn signal_reason(status: ExitStatus, log: &Path) -> String {
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt;
+        if status.signal() == Some(libc::SIGXFSZ) {
+            return format!(
+                "its log or report grew past the sweep's {} GiB limit and it was stopped (a run \
+                 that never ends logs without bound): {}",
+                RUN_FILE_LIMIT >> 30,
+                stderr_tail(log)
+            );
+        }
+    }
+    format!("ended by a signal ({status}): {}", stderr_reason(log))
+}
+
+/// The last line of a log too large to read whole.
+fn stderr_tail(log: &Path) -> String {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut tail = String::new();
+    if let Ok(mut f) = File::open(log) {
+        let _ = f.seek(SeekFrom::End(-4096));
+        let mut bytes = Vec::new();
+        let _ = f.read_to_end(&mut bytes);
+        tail = String::from_utf8_lossy(&bytes).into_owned();
+    }
+    let line = tail
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("no output");
+    line.trim().chars().take(300).collect()
+}
 
 /// Progress: a bar on a terminal, else one line per finished run.
 struct Progress {
@@ -492,4 +537,24 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<()> {
         dirs.len()
     );
     report(out, &definition, &results)
+}
+
+#[cfg(all(test, target_os = "linux"))]
+mod tests {
+    use super::*;
+
+    /// A run that writes past the limit is stopped there, and the sweep says why.
+    #[test]
+    fn a_run_writing_past_the_file_limit_is_stopped_and_the_reason_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("run.log");
+        let mut cmd = Command::new("head");
+        cmd.args(["-c", "100000", "/dev/zero"]);
+        guard_child(&mut cmd, 4096);
+        let status = cmd.stdout(File::create(&log).unwrap()).status().unwrap();
+        assert!(std::fs::metadata(&log).unwrap().len() <= 4096);
+        assert_eq!(status.code(), None, "{status}");
+        let why = signal_reason(status, &log);
+        assert!(why.contains("limit"), "{why}");
+    }
 }
