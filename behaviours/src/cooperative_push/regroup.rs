@@ -56,6 +56,11 @@ impl CooperativePush {
             b.seeking = false;
         }
         self.enter(Phase::Regroup, world);
+        self.stop_team(world, team)
+    }
+
+    /// Every tracked robot stopped (the supervisor stops lost ones itself), every reflex on.
+    pub(super) fn stop_team(&self, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
         let mut out: Vec<Intent> = team
             .ids()
             .filter(|&id| {
@@ -67,6 +72,17 @@ impl CooperativePush {
             .collect();
         out.extend(self.reflexes(REFLEX_ON));
         out
+    }
+
+    /// Whether `id` stands still with nothing to do: no move out, no follow, wheels at rest.
+    pub(super) fn at_rest(id: u16, world: &WorldSnapshot, team: &Team) -> bool {
+        world.robot(id).is_some_and(|v| {
+            let w = v.state.wheels;
+            team.idle(id)
+                && team.following(id).is_none()
+                && w.left_mps.abs() < 0.005
+                && w.right_mps.abs() < 0.005
+        })
     }
 
     /// The robot `id` is lost: its moves were dropped, and it is re-localised before it takes
@@ -119,14 +135,10 @@ impl CooperativePush {
         }
         self.retry_at = None;
         let ready = |id: u16| {
-            world.robot(id).is_some_and(|v| {
-                let w = v.state.wheels;
-                v.localisation == Localisation::Tracking
-                    && team.idle(id)
-                    && team.following(id).is_none()
-                    && w.left_mps.abs() < 0.005
-                    && w.right_mps.abs() < 0.005
-            })
+            world
+                .robot(id)
+                .is_some_and(|v| v.localisation == Localisation::Tracking)
+                && Self::at_rest(id, world, team)
         };
         let Some(site) = self.site else {
             // Lost before the box was placed: everyone is on the tape; follow it again.

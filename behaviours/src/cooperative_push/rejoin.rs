@@ -48,17 +48,7 @@ impl CooperativePush {
             b.seeking = false;
         }
         self.enter(Phase::Rejoin, world);
-        let mut out: Vec<Intent> = team
-            .ids()
-            .filter(|&id| {
-                world
-                    .robot(id)
-                    .is_some_and(|v| v.localisation == Localisation::Tracking)
-            })
-            .map(|robot| Intent::Stop { robot })
-            .collect();
-        out.extend(self.reflexes(REFLEX_ON));
-        out
+        self.stop_team(world, team)
     }
 
     /// One step of the rejoin: while a robot is searched for, only those on the tape ahead of it
@@ -79,15 +69,7 @@ impl CooperativePush {
                 .is_some_and(|v| v.localisation == Localisation::Tracking)
         };
         let ids: Vec<u16> = self.bots.keys().copied().collect();
-        let still = |id: u16| {
-            world.robot(id).is_some_and(|v| {
-                let w = v.state.wheels;
-                team.idle(id)
-                    && team.following(id).is_none()
-                    && w.left_mps.abs() < 0.005
-                    && w.right_mps.abs() < 0.005
-            })
-        };
+        let still = |id: u16| Self::at_rest(id, world, team);
         let along = |id: u16| {
             world.robot(id).map_or(0.0, |v| {
                 (Vector2::new(v.pose.x, v.pose.y) - site.centre.coords).dot(&site.along)
