@@ -356,10 +356,16 @@ fn guard_child(cmd: &mut Command, file_limit: u64) {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) == -1 {
                 return Err(std::io::Error::last_os_error());
             }
-            let limit = libc::rlimit {
-                rlim_cur: file_limit,
-                rlim_max: file_limit,
+            // Only the soft limit, and never above the hard one: raising a limit the shell set
+            // lower is refused, and the run would not start.
+            let mut limit = libc::rlimit {
+                rlim_cur: 0,
+                rlim_max: 0,
             };
+            if libc::getrlimit(libc::RLIMIT_FSIZE, &mut limit) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            limit.rlim_cur = limit.rlim_max.min(file_limit);
             if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) == -1 {
                 return Err(std::io::Error::last_os_error());
             }
