@@ -42,6 +42,18 @@ pub const UNCERTAINTY_SIGMAS: f64 = 1.0;
 /// heading: the region it may be anywhere in, not a 1σ ring.
 pub const LOST_SIGMAS: f64 = 3.0;
 
+/// A lost mover's straight drive is widened only to its sides up to this heading uncertainty
+/// (1σ); beyond it, in every direction (see [`Safety::drift`]).
+pub const SIDE_ONLY_RAD: f64 = 60.0 * std::f64::consts::PI / 180.0;
+
+/// How much farther than its berth a lost mover may be from one of its path's poses: to each
+/// side of the path, and in every direction, metres.
+#[derive(Clone, Copy, Debug, Default)]
+struct Growth {
+    side: f64,
+    all: f64,
+}
+
 /// Robots already within each other's widened footprints may close in by at most this along a
 /// path (two pushers backing off side by side are not quite parallel).
 const ALONGSIDE_M: f64 = 0.002;
@@ -98,10 +110,22 @@ impl Broad {
 }
 
 impl Safety {
+    /// Whether the model has lost `v`, or is less sure of it than tape could find it.
+    fn lost(&self, v: &RobotView) -> bool {
+        v.localisation == Localisation::Lost
+            || v.uncertainty.position_m > crate::model::LOST_SIGMA_M
+    }
+
     /// How far a moving robot's own footprint is grown: the margin and 1σ of its position,
-    /// tracked or lost.
+    /// tracked or lost; a lost one's also by what a turn of 1σ of its heading sweeps, since it
+    /// may really face that far off the way the model has it.
     pub fn berth(&self, v: &RobotView) -> f64 {
-        self.margin_m + UNCERTAINTY_SIGMAS * v.uncertainty.position_m
+        let turned = if self.lost(v) {
+            self.turned(v, UNCERTAINTY_SIGMAS)
+        } else {
+            0.0
+        };
+        self.margin_m + UNCERTAINTY_SIGMAS * v.uncertainty.position_m + turned
     }
 
     /// How far robot `v`'s footprint is grown beyond its plain size: the margin, and its
@@ -113,16 +137,54 @@ impl Safety {
     /// heading). A footprint displaced by less than the growth, or turned by less than that
     /// turn, stays inside the grown one.
     pub fn reach(&self, v: &RobotView) -> f64 {
-        let lost = v.localisation == Localisation::Lost
-            || v.uncertainty.position_m > crate::model::LOST_SIGMA_M;
-        if !lost {
+        if !self.lost(v) {
             return self.margin_m + UNCERTAINTY_SIGMAS * v.uncertainty.position_m;
         }
+        self.margin_m + LOST_SIGMAS * v.uncertainty.position_m + self.turned(v, LOST_SIGMAS)
+    }
+
+    /// The farthest any point of `v`'s footprint moves under a turn of `sigmas` σ of its
+    /// heading, at most what covers any heading.
+    fn turned(&self, v: &RobotView, sigmas: f64) -> f64 {
         let half_diag = (self.length_m / 2.0).hypot(self.width_m / 2.0);
         let any_heading = half_diag - self.width_m.min(self.length_m) / 2.0;
-        let turn = (LOST_SIGMAS * v.uncertainty.heading_rad).min(std::f64::consts::PI);
-        let turned = (2.0 * half_diag * (turn / 2.0).sin()).min(any_heading);
-        self.margin_m + LOST_SIGMAS * v.uncertainty.position_m + turned
+        let turn = (sigmas * v.uncertainty.heading_rad).min(std::f64::consts::PI);
+        (2.0 * half_diag * (turn / 2.0).sin()).min(any_heading)
+    }
+
+    /// How much farther than its berth a mover may really be from each of `path`'s poses: none
+    /// for a tracked robot. A lost one may face up to δ = 1σ of its heading off (the mover is
+    /// taken within 1σ, as its position is),
+    /// which turns its whole path about its start: a straight drive's pose `s` metres along may
+    /// really lie `s·tan δ` to either side (within the wedge the widened footprints sweep), for
+    /// δ up to [`SIDE_ONLY_RAD`]; a wider δ, or an arc, moves the pose up to `2·c·sin(δ/2)`
+    /// in any direction, `c` its distance from the start. A turn on the spot stays where it is.
+    fn drift(&self, v: &RobotView, path: &[Pose]) -> Vec<Growth> {
+        let none = Growth::default();
+        let Some(start) = path.first().copied() else {
+            return Vec::new();
+        };
+        if !self.lost(v) {
+            return vec![none; path.len()];
+        }
+        let delta = (UNCERTAINTY_SIGMAS * v.uncertainty.heading_rad).min(std::f64::consts::PI);
+        let straight = path.iter().all(|p| p.theta == start.theta);
+        path.iter()
+            .map(|p| {
+                let c = (p.x - start.x).hypot(p.y - start.y);
+                if straight && delta <= SIDE_ONLY_RAD {
+                    Growth {
+                        side: c * delta.tan(),
+                        all: 0.0,
+                    }
+                } else {
+                    Growth {
+                        side: 0.0,
+                        all: 2.0 * c * (delta / 2.0).sin(),
+                    }
+                }
+            })
+            .collect()
     }
 
     /// `Ok` when the intent is safe in `world`, else why not. `from` is where the robot's queued
@@ -147,8 +209,12 @@ impl Safety {
         // clear of, and a lost robot searching for the tape beside another (a queue, pushers
         // side by side) could otherwise never move (record 0031).
         let my_margin = self.berth(me);
+        let drift = self.drift(me, &path);
+        // Against the walls the mover is taken at its berth alone: a search leg widened by its
+        // heading's whole wedge would never fit beside a wall, and its reflex sees a wall ahead.
         self.within_arena(me, &path, my_margin, world.arena)?;
-        let broad = Broad::new(self, &path, my_margin);
+        let widest_drift = drift.iter().map(|g| g.side + g.all).fold(0.0, f64::max);
+        let broad = Broad::new(self, &path, my_margin + widest_drift);
         let widest_margin = world
             .robots
             .iter()
@@ -176,7 +242,7 @@ impl Safety {
                     .map(|(_, p)| *p),
             );
             for q in theirs {
-                self.clear_of(me, other, q, &path, my_margin, their_margin)?;
+                self.clear_of(me, other, q, (&path, &drift), my_margin, their_margin)?;
             }
         }
         Ok(())
@@ -235,22 +301,44 @@ impl Safety {
         me: &RobotView,
         other: &RobotView,
         q: Pose,
-        path: &[Pose],
+        (path, drift): (&[Pose], &[Growth]),
         my_margin: f64,
         their_margin: f64,
     ) -> Result<(), String> {
-        let mine = |p: Pose| Footprint::new(p, self.length_m, self.width_m, my_margin);
+        // A lost mover's footprint widens to each side as it goes (see [`Safety::drift`]).
+        let grown = |p: Pose, g: Growth, margin: f64| {
+            Footprint::new(p, self.length_m, self.width_m + 2.0 * g.side, margin + g.all)
+        };
         let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
-        let overlapping_now = mine(path[0]).overlaps(&fq);
-        let plain = |p: Pose| Footprint::new(p, self.length_m, self.width_m, self.margin_m);
-        let fq_plain = plain(q);
-        let start_depth = plain(path[0]).depth(&fq_plain);
-        let Some(p) = path.iter().skip(1).find(|p| {
+        let overlapping_now = grown(path[0], Growth::default(), my_margin).overlaps(&fq);
+        // Parting from a lost robot is judged against its whole region: where in it the robot
+        // stands is unknown, and a corner of it may stand in the way out.
+        let their_depth_margin = if self.lost(other) {
+            their_margin
+        } else {
+            self.margin_m
+        };
+        let fq_plain = Footprint::new(q, self.length_m, self.width_m, their_depth_margin);
+        let my_depth_margin = if self.lost(me) {
+            my_margin
+        } else {
+            self.margin_m
+        };
+        let start_depth = grown(path[0], Growth::default(), my_depth_margin).depth(&fq_plain);
+        // A lost mover may not close in at all, nor turn there: where it really stands beside
+        // the other robot is unknown, and any corner a turn swings out may be the near one.
+        let (half_diag, tolerance) = if self.lost(me) {
+            ((self.length_m / 2.0).hypot(self.width_m / 2.0), 0.0)
+        } else {
+            (0.0, ALONGSIDE_M)
+        };
+        let Some((p, _)) = path.iter().zip(drift).skip(1).find(|(p, d)| {
             if overlapping_now {
-                let d = plain(**p).depth(&fq_plain);
-                d > start_depth + ALONGSIDE_M || (d > 0.0 && d > start_depth)
+                let swing = 2.0 * half_diag * (wrap_abs(p.theta - path[0].theta) / 2.0).sin();
+                let depth = grown(**p, **d, my_depth_margin + swing).depth(&fq_plain);
+                depth > start_depth + tolerance || (depth > 0.0 && depth > start_depth)
             } else {
-                mine(**p).overlaps(&fq)
+                grown(**p, **d, my_margin).overlaps(&fq)
             }
         }) else {
             return Ok(());
@@ -279,6 +367,12 @@ impl Safety {
     pub fn check(&self, intent: &Intent, world: &WorldSnapshot) -> Result<(), String> {
         self.check_planned(intent, world, None, &[])
     }
+}
+
+/// The size of an angle, wrapped to at most π.
+fn wrap_abs(a: f64) -> f64 {
+    let a = a.rem_euclid(std::f64::consts::TAU);
+    a.min(std::f64::consts::TAU - a)
 }
 
 /// Where `command` ends when it starts at `p`.
@@ -617,8 +711,9 @@ mod tests {
             /// The rule the supervisor keeps: a move the check approves, from robots clear of
             /// each other's grown footprints, sweeps footprints (at the check's own steps) that
             /// touch none of the other robot's possible poses: the mover anywhere within 1σ of
-            /// where the check sweeps it, the other within its region (a tracked one within 1σ,
-            /// a lost one within 3σ and turned by up to 3σ of its heading).
+            /// where the check sweeps it (a lost mover's whole path also turned about its start
+            /// by up to 1σ of its heading), the other within its region (a tracked one within
+            /// 1σ, a lost one within 3σ and turned by up to 3σ of its heading).
             #[test]
             fn an_approved_move_never_reaches_where_the_other_robot_may_be(
                 a in (0.3..0.7f64, 0.3..0.7f64, -PI..PI),
@@ -653,7 +748,21 @@ mod tests {
                 }
                 let really_b = possible(&other, pb, (where_b.0, where_b.1), where_b.2);
                 let theirs = Footprint::new(really_b, s.length_m, s.width_m, 0.0);
+                // A lost mover may really face up to 1σ of its heading off: its whole path turns
+                // by that about its start.
+                let phi = if lost.0 {
+                    where_a.2 * (UNCERTAINTY_SIGMAS * sigmas.1).min(PI)
+                } else {
+                    0.0
+                };
+                let (sp, cp) = phi.sin_cos();
                 for p in s.path(&intent, pa).expect("a move moves") {
+                    let (dx, dy) = (p.x - pa.x, p.y - pa.y);
+                    let p = Pose {
+                        x: pa.x + dx * cp - dy * sp,
+                        y: pa.y + dx * sp + dy * cp,
+                        theta: p.theta + phi,
+                    };
                     // The mover within 1σ of where the check sweeps it, lost or not.
                     let tracked = RobotView { localisation: Localisation::Tracking, ..me.clone() };
                     let really_a = possible(&tracked, p, (where_a.0, where_a.1), where_a.2);

@@ -90,17 +90,28 @@ impl CooperativePush {
 
     /// From `pose` on the tape behind the box: down to an approach lane below the slots, along it,
     /// then a quarter turn and straight up into the slot. Arriving sideways along the slots' line
-    /// would swing the 48 mm body into the robot already waiting there. The robot's own reflex
-    /// may end the last leg a little short of the box.
+    /// would swing the 48 mm body into the robot already waiting there. The first robot into
+    /// the slots takes a shallower lane, and a robot farther back follows the tape's line up to
+    /// where the finder left it first: off the tape nothing measures the heading, so the legs
+    /// along the arena's edge are kept short and far from it. The robot's own reflex may end
+    /// the last leg a little short of the box.
     pub(super) fn to_slot(&self, id: u16, pose: Pose, site: &Site, back_up: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along) - back_up;
-        let approach = self.lane() - APPROACH_BELOW;
-        let down = site.at(along_now, approach);
+        let leave = -(HALF_LEN + SIGHTED_GAP + self.box_half + TURN_BACK);
+        let first = self.bots.len() == 1 || Some(id) == self.finder;
+        let approach = self.lane() - if first { FIRST_BELOW } else { APPROACH_BELOW };
+        let mut route = Manoeuvre::from(pose, MANOEUVRE_MPS).straight(-back_up);
+        let mut along = along_now;
+        if along_now < leave {
+            let ahead = site.at(leave, here.dot(&site.push));
+            route = route.to(ahead.x, ahead.y);
+            along = leave;
+        }
+        let down = site.at(along, approach);
         let below = site.at(self.slot(id), approach);
         let slot = site.at(self.slot(id), self.lane());
-        Manoeuvre::from(pose, MANOEUVRE_MPS)
-            .straight(-back_up)
+        route
             .to(down.x, down.y)
             .to(below.x, below.y)
             .to(slot.x, slot.y)

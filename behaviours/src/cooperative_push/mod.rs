@@ -57,6 +57,15 @@ const LANE_GAP: f64 = 0.012;
 /// bodies, room for the safety check's margins and for twice the uncertainty of each pose; any
 /// lower and a turn in the lane would come too near the arena's edge.
 const APPROACH_BELOW: f64 = 0.055;
+/// The first robot into the slots, with no one beside them yet, takes a lane this far below
+/// them: a turn there clears the box, and a leg along it stays 58 mm from the arena's edge, so
+/// that a heading nothing on the robot measures off the tape (a turn by hand while it drives)
+/// can be 20° wrong over the whole leg without a corner reaching the edge.
+const FIRST_BELOW: f64 = 0.020;
+/// A robot leaves the tape for the slots this far behind where the finder stood when it saw the
+/// box: the finder's own back-up before its first turn. The helper follows the tape up to
+/// there first, so that its leg along the deep lane, 23 mm from the arena's edge, is short.
+const TURN_BACK: f64 = 0.015;
 /// Pushers stand this far either side of the box's centre line: 16 mm between their bodies, so
 /// that the second can turn into its slot beside the first with room for a few millimetres of
 /// pose error, while each still covers 12 mm of a 40 mm box.

@@ -185,17 +185,22 @@ impl CooperativePush {
         self.retry_at = Some(world.time + REGROUP_RETRY);
     }
 
-    /// From `pose` down to the approach lane, along it to `behind` the box's centre and up onto
-    /// the tape there, facing the way the team follows it. A robot facing the box (in its slot,
+    /// From `pose` down to the approach lane, along it until clear of the box, up onto the tape
+    /// there, facing the way the team follows it, and back along the tape to `behind` the box's
+    /// centre. A robot facing the box (in its slot,
     /// or after a push) backs straight down: a turn there would sweep its corners into the other
     /// pusher standing 16 mm beside it.
     fn back_behind(&self, pose: Pose, site: &Site, behind: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along);
         let lane = self.lane() - REGROUP_BELOW;
+        // Off the tape nothing measures the heading: the leg along the lane, beside the arena's
+        // edge, ends as soon as the robot is clear of the box, and the rest is driven backwards
+        // along the tape, where a heading off shows as the tape leaving the sensor.
+        let clear = behind.max(-(self.box_half + HALF_LEN + REGROUP_BEHIND));
         let down = site.at(along_now, lane);
-        let below = site.at(behind, lane);
-        let on_tape = site.at(behind, 0.0);
+        let below = site.at(clear, lane);
+        let on_tape = site.at(clear, 0.0);
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let start = Manoeuvre::from(pose, MANOEUVRE_MPS);
         let start = if heading.dot(&site.push) > FACING_BOX_COS {
@@ -207,6 +212,7 @@ impl CooperativePush {
             .to(below.x, below.y)
             .to(on_tape.x, on_tape.y)
             .turn_to(Site::heading(site.along))
+            .straight(behind - clear)
     }
 
     /// Everyone stands on the tape: follow it again until someone finds the box, or, when a push
