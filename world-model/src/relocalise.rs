@@ -340,8 +340,13 @@ impl Relocaliser {
         } else {
             (-behind, ahead)
         };
+        // A turn of a degree or two means nothing to a robot whose heading is lost by 15° or
+        // more, and beside a neighbour the safety check holds any turn of a lost robot.
+        let facing = dir.y.atan2(dir.x);
+        if wrap_angle(facing - theta).abs() > SMALL_TURN_RAD {
+            moves.push(turn_to(theta, facing));
+        }
         moves.extend([
-            turn_to(theta, dir.y.atan2(dir.x)),
             straight(first as f32),
             straight((second - first) as f32),
             straight(-second as f32),
@@ -386,6 +391,9 @@ fn room_along(at: [f64; 2], dir: [f64; 2], room: ([f64; 2], [f64; 2])) -> f64 {
     }
     t.max(0.0)
 }
+
+/// The sweep skips a turn to face across the tape smaller than this.
+const SMALL_TURN_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
 
 fn straight(distance_m: f32) -> MoveCommand {
     MoveCommand::Straight {

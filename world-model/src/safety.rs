@@ -517,6 +517,43 @@ mod tests {
         }
     }
 
+    /// Two pushers side by side, 16 mm between their bodies, both facing the box; robot 1 lost
+    /// with 20 mm and 20° of 1σ. It may not turn beside its neighbour nor drive along it, where
+    /// its true heading may take it into it; the neighbour may back away from it.
+    #[test]
+    fn a_lost_pusher_may_not_move_beside_its_neighbour_which_may_back_away() {
+        let s = Safety::default();
+        let tracked = world(&[(1, 0.5, 0.3, FRAC_PI_2), (2, 0.548, 0.3, FRAC_PI_2)]);
+        let lost = RobotView {
+            localisation: Localisation::Lost,
+            uncertainty: behaviour_api::PoseUncertainty {
+                position_m: 0.02,
+                heading_rad: 20f64.to_radians(),
+            },
+            ..(*tracked.robots[0]).clone()
+        };
+        let w = WorldSnapshot {
+            robots: [lost, (*tracked.robots[1]).clone()]
+                .into_iter()
+                .map(std::sync::Arc::new)
+                .collect(),
+            ..tracked.clone()
+        };
+        let turn = Intent::Move {
+            robot: 1,
+            command: MoveCommand::Rotate {
+                angle_deg: -2.0,
+                speed_mps: 0.05,
+            },
+            tag: 0,
+        };
+        for (what, intent) in [("a 2° turn", turn), ("a drive along", straight(1, 0.1))] {
+            assert!(s.check(&intent, &tracked).is_ok(), "tracked: {what}");
+            assert!(s.check(&intent, &w).is_err(), "lost: {what}");
+        }
+        assert!(s.check(&straight(2, -0.05), &w).is_ok());
+    }
+
     #[test]
     fn holds_back_a_move_into_another_robot_or_a_wall() {
         let s = Safety::default();

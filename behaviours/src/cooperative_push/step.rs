@@ -464,6 +464,26 @@ impl Behaviour for CooperativePush {
                     team,
                 )
             }
+            // Felt off the tape while the team gathers at the box, where the model only widens
+            // it (no tape could fix it there) and its queued route would take it on at a
+            // heading up to 20° off, along the arena's edge: the team stops and regroups.
+            Event::Bumped { moved_m }
+                if matches!(
+                    self.phase,
+                    Phase::Gather | Phase::FinderToSlot | Phase::HelperToSlot
+                ) && world
+                    .robot(robot)
+                    .is_some_and(|v| v.localisation == Localisation::Tracking) =>
+            {
+                self.regroup(
+                    format!(
+                        "robot {robot} felt a bump of about {:.0} mm off the tape",
+                        moved_m * 1e3
+                    ),
+                    world,
+                    team,
+                )
+            }
             Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
         }

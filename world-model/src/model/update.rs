@@ -312,10 +312,8 @@ impl WorldModel {
     /// robot also turns it, and a turn is what makes a confident model wrong by decimetres a few
     /// seconds later. Wheels turned while it stood on a plain
     /// stretch of tape are left to the line reading at rest, which sees a shift or turn there;
-    /// at a junction or a tape's end it cannot, and the robot is lost. Far from tape a felt jolt
-    /// loses the robot too: it is stopped and searched for rather than drive on a heading up to
-    /// 20° off (a pusher shoved in the lane beside the arena's edge drove into it). Returns why
-    /// the robot is lost, for
+    /// at a junction or a tape's end it cannot, and the robot is lost. Where no tape is within
+    /// reach it is only widened: nothing could fix it there. Returns why the robot is lost, for
     /// the supervisor to stop and re-localise it; `None` when it is not, or the model has no
     /// estimate of it yet.
     pub fn bumped(&self, id: u16, felt: Felt, at: tokio::time::Instant) -> Option<String> {
@@ -352,6 +350,18 @@ impl WorldModel {
             if plain {
                 return None;
             }
+        }
+        if !tape_near {
+            // It drives on, as uncertain as the move made it; the others keep that much
+            // farther away.
+            widen(
+                &mut e.cov,
+                (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
+                BUMP_TURN_RAD,
+            );
+            drop(e);
+            self.show_bump(id, None, false);
+            return None;
         }
         // A small jolt straight along the heading is what a robot's own drive into something
         // (an obstacle met, a slip under a load) feels: the odometry's error, given back, and
