@@ -307,7 +307,12 @@ impl Safety {
     ) -> Result<(), String> {
         // A lost mover's footprint widens to each side as it goes (see [`Safety::drift`]).
         let grown = |p: Pose, g: Growth, margin: f64| {
-            Footprint::new(p, self.length_m, self.width_m + 2.0 * g.side, margin + g.all)
+            Footprint::new(
+                p,
+                self.length_m,
+                self.width_m + 2.0 * g.side,
+                margin + g.all,
+            )
         };
         let fq = Footprint::new(q, self.length_m, self.width_m, their_margin);
         let overlapping_now = grown(path[0], Growth::default(), my_margin).overlaps(&fq);

@@ -18,8 +18,7 @@ impl Supervisor {
         // The sweep stays where the safety check lets the lost robot's footprint go: the circle
         // round its footprint grown by its berth against the walls (with room for its
         // uncertainty to grow a little on the way) inside the arena.
-        let berth = self.safety.berth(&view)
-            + safety::UNCERTAINTY_SIGMAS * SWEEP_SIGMA_GROWTH_M;
+        let berth = self.safety.berth(&view) + safety::UNCERTAINTY_SIGMAS * SWEEP_SIGMA_GROWTH_M;
         let clear = (self.safety.length_m / 2.0 + berth).hypot(self.safety.width_m / 2.0 + berth);
         let (w, h) = self.arena;
         let room = ([clear, clear], [w - clear, h - clear]);
