@@ -146,3 +146,23 @@ fn a_pusher_put_down_nearer_the_wall_is_stopped_by_its_reflex_before_it_touches(
         "the run hung: {r}"
     );
 }
+
+/// The finder turned 17° by a hand on its way to its slot, moved too little (4 mm) for its
+/// accelerometer to report: off the tape nothing measures its heading, and its route drives on
+/// 17° off. The lane along the arena's edge is short and far enough from it that the turn does
+/// not take a corner there (55 mm below the slots it drove into the edge), and nothing touches.
+#[test]
+fn a_finder_turned_by_hand_on_its_way_to_its_slot_keeps_off_the_arena_edge() {
+    let r = kicked(
+        "cooperative_push",
+        7,
+        "shove:1:2.64:0.0036,-0.0014,-17",
+        120,
+    );
+    nothing_touched(&r);
+    assert!(kicked_robot(&r).distance_m.is_some_and(|d| d > 0.3), "{r}");
+    assert!(
+        !r.verdict.summary.contains("did not finish"),
+        "the run hung: {r}"
+    );
+}

@@ -174,8 +174,6 @@ struct Bot {
     seeking: bool,
     /// Back on the tape after the push, facing along it.
     rejoined: bool,
-    /// Backed away from a lost teammate beside it in this regroup or rejoin.
-    made_room: bool,
 }
 
 /// The cooperative pushing behaviour.

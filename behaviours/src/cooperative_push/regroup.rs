@@ -18,15 +18,6 @@ const REGROUP_SPACING: f64 = 0.15;
 const REGROUP_BELOW: f64 = 0.045;
 /// A robot whose heading is within about 35° of the push direction faces the box.
 const FACING_BOX_COS: f64 = 0.8;
-/// A robot whose centre is this close to a lost teammate's stands inside its region (16 mm
-/// between two pushers' bodies puts their centres 48 mm apart), and backs away from the box up
-/// to this far, keeping its rear this far from the arena's edge (its reflex's reach, and its
-/// uncertainty), and not at all when less than the last figure is left: a lost robot's search
-/// leg beside it is held until it stands clear of the lost robot's berth, some 40 mm beyond it.
-const ROOM_NEAR: f64 = 0.1;
-const ROOM_BACK: f64 = 0.09;
-const ROOM_EDGE: f64 = 0.03;
-const ROOM_LEAST: f64 = 0.02;
 /// A route the safety check held is tried again this much later.
 const REGROUP_RETRY: Duration = Duration::from_millis(1000);
 
@@ -63,7 +54,6 @@ impl CooperativePush {
             b.backing = None;
             b.crossed_tape = false;
             b.seeking = false;
-            b.made_room = false;
         }
         self.enter(Phase::Regroup, world);
         self.stop_team(world, team)
@@ -157,10 +147,6 @@ impl CooperativePush {
             }
             return Vec::new();
         };
-        let room = self.make_room(&site, world, team);
-        if !room.is_empty() {
-            return room;
-        }
         // The robot farthest behind goes first, to the farther place: no one passes another in
         // the lane.
         let along = |id: u16| {
@@ -191,67 +177,6 @@ impl CooperativePush {
             return self.follow_again(world, team);
         }
         Vec::new()
-    }
-
-    /// A tracked robot at rest beside a lost teammate, facing the box as pushers do, backs
-    /// straight away from the box once: the safety check lets a lost robot neither turn nor
-    /// drive along a neighbour inside its region (its true heading may take it into it), so its
-    /// search would stand held until the run ends `lost and not found`. Backing is parallel to
-    /// the neighbour, which the check lets a tracked robot do.
-    pub(super) fn make_room(
-        &mut self,
-        site: &Site,
-        world: &WorldSnapshot,
-        team: &Team,
-    ) -> Vec<Intent> {
-        let lost: Vec<Pose> = world
-            .robots
-            .iter()
-            .filter(|v| self.bots.contains_key(&v.id))
-            .filter(|v| v.localisation != Localisation::Tracking)
-            .map(|v| v.pose)
-            .collect();
-        let mut out = Vec::new();
-        for v in world.robots.iter() {
-            let Some(b) = self.bots.get(&v.id) else {
-                continue;
-            };
-            let heading = Vector2::new(v.pose.theta.cos(), v.pose.theta.sin());
-            let beside = lost
-                .iter()
-                .any(|l| (l.x - v.pose.x).hypot(l.y - v.pose.y) < ROOM_NEAR);
-            if b.made_room
-                || v.localisation != Localisation::Tracking
-                || !beside
-                || heading.dot(&site.push) < FACING_BOX_COS
-                || !Self::at_rest(v.id, world, team)
-            {
-                continue;
-            }
-            if let Some(b) = self.bots.get_mut(&v.id) {
-                b.made_room = true;
-            }
-            // As far as the lost robot's region needs, short of the arena's edge behind.
-            let rear = Vector2::new(v.pose.x, v.pose.y) - heading * HALF_LEN;
-            let (w, h) = world.arena;
-            let to_edge = [
-                (rear.x, -heading.x),
-                (w - rear.x, heading.x),
-                (rear.y, -heading.y),
-                (h - rear.y, heading.y),
-            ]
-            .iter()
-            .filter(|(_, toward)| *toward < -1e-6)
-            .map(|(gap, toward)| gap / -toward)
-            .fold(f64::INFINITY, f64::min);
-            let back = ROOM_BACK.min(to_edge - ROOM_EDGE);
-            if back < ROOM_LEAST {
-                continue;
-            }
-            let route = Manoeuvre::from(v.pose, MANOEUVRE_MPS).straight(-back);
-            out.extend(self.send(v.id, route));
-        }
-        out
     }
 
     /// A regroup route was held: the robot stands where it is; plan it again a little later.

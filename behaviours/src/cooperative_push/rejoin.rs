@@ -46,7 +46,6 @@ impl CooperativePush {
         for b in self.bots.values_mut() {
             b.backing = None;
             b.seeking = false;
-            b.made_room = false;
         }
         self.enter(Phase::Rejoin, world);
         self.stop_team(world, team)
@@ -87,7 +86,7 @@ impl CooperativePush {
         // robot already on the tape ahead of it follows the tape away, making room for it.
         let lost: Vec<u16> = ids.iter().copied().filter(|&id| !tracked(id)).collect();
         if !lost.is_empty() {
-            let mut out = self.make_room(&site, world, team);
+            let mut out = Vec::new();
             for &id in &ids {
                 if lost.contains(&id)
                     || !team.idle(id)

@@ -466,7 +466,8 @@ impl Behaviour for CooperativePush {
             }
             // Felt off the tape while the team gathers at the box, where the model only widens
             // it (no tape could fix it there) and its queued route would take it on at a
-            // heading up to 20° off, along the arena's edge: the team stops and regroups.
+            // heading up to 20° off, along the arena's edge: the team stops, and the run ends.
+            // A regroup from there drove the same unknown heading along the lane and touched.
             Event::Bumped { moved_m }
                 if matches!(
                     self.phase,
@@ -475,14 +476,13 @@ impl Behaviour for CooperativePush {
                     .robot(robot)
                     .is_some_and(|v| v.localisation == Localisation::Tracking) =>
             {
-                self.regroup(
-                    format!(
-                        "robot {robot} felt a bump of about {:.0} mm off the tape",
-                        moved_m * 1e3
-                    ),
-                    world,
-                    team,
-                )
+                let mut out = self.stop_team(world, team);
+                out.extend(self.fail(format!(
+                    "robot {robot} felt a bump of about {:.0} mm off the tape, where nothing \
+                     measures its heading: the team stopped",
+                    moved_m * 1e3
+                )));
+                out
             }
             Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
             _ => Vec::new(),
