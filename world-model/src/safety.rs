@@ -210,9 +210,12 @@ impl Safety {
         // side by side) could otherwise never move (record 0031).
         let my_margin = self.berth(me);
         let drift = self.drift(me, &path);
-        // Against the walls the mover is taken at its berth alone: a search leg widened by its
-        // heading's whole wedge would never fit beside a wall, and its reflex sees a wall ahead.
-        self.within_arena(me, &path, my_margin, world.arena)?;
+        // Against the walls the mover is taken at 1σ of its position alone: a search leg widened
+        // by its heading's wedge, or its footprint by a turn, held searches beside a wall that
+        // found their robots before (a follower knocked off a bend, `traffic_control` robots
+        // by the arena's edge), and its reflex sees a wall ahead.
+        let wall_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
+        self.within_arena(me, &path, wall_margin, world.arena)?;
         let widest_drift = drift.iter().map(|g| g.side + g.all).fold(0.0, f64::max);
         let broad = Broad::new(self, &path, my_margin + widest_drift);
         let widest_margin = world

@@ -15,11 +15,12 @@ impl Supervisor {
             robot = id,
             why, "robot lost: stopping it and re-localising it"
         );
-        // The sweep stays where the safety check lets the lost robot's footprint go: the circle
-        // round its footprint grown by its berth against the walls (with room for its
-        // uncertainty to grow a little on the way) inside the arena.
-        let berth = self.safety.berth(&view) + safety::UNCERTAINTY_SIGMAS * SWEEP_SIGMA_GROWTH_M;
-        let clear = (self.safety.length_m / 2.0 + berth).hypot(self.safety.width_m / 2.0 + berth);
+        // The sweep stays where the safety check lets the lost robot's footprint go: its
+        // circumscribed circle, the margin and its uncertainty (1σ against the walls, with room
+        // for it to grow a little on the way) inside the arena.
+        let clear = (self.safety.length_m / 2.0).hypot(self.safety.width_m / 2.0)
+            + self.safety.margin_m
+            + safety::UNCERTAINTY_SIGMAS * (view.uncertainty.position_m + SWEEP_SIGMA_GROWTH_M);
         let (w, h) = self.arena;
         let room = ([clear, clear], [w - clear, h - clear]);
         let (routine, first) = Relocaliser::start(
