@@ -43,7 +43,7 @@ pub const UNCERTAINTY_SIGMAS: f64 = 1.0;
 pub const LOST_SIGMAS: f64 = 3.0;
 
 /// A lost mover's straight drive is widened only to its sides up to this heading uncertainty
-/// (1σ); beyond it, in every direction (see [`Safety::drift`]).
+/// (1σ); beyond it, in every direction (see `Safety::drift`).
 pub const SIDE_ONLY_RAD: f64 = 60.0 * std::f64::consts::PI / 180.0;
 
 /// How much farther than its berth a lost mover may be from one of its path's poses: to each
