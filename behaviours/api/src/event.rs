@@ -94,7 +94,8 @@ pub enum Event {
     /// The robot's main loop overran its period this many times.
     Overrun(u32),
     /// The robot felt itself moved by something other than its wheels (the world model has
-    /// already widened its pose and the supervisor stopped it to re-localise it).
+    /// already widened its pose; where tape could fix it, the supervisor also stopped it to
+    /// re-localise it, and elsewhere it drives on).
     Bumped {
         /// How far the bump moved it, as the robot estimated, metres.
         moved_m: f64,

@@ -187,9 +187,8 @@ impl CooperativePush {
 
     /// From `pose` down to the approach lane, along it until clear of the box, up onto the tape
     /// there, facing the way the team follows it, and back along the tape to `behind` the box's
-    /// centre. A robot facing the box (in its slot,
-    /// or after a push) backs straight down: a turn there would sweep its corners into the other
-    /// pusher standing 16 mm beside it.
+    /// centre. A robot facing the box (in its slot, or after a push) backs straight down: a turn
+    /// there would sweep its corners into the other pusher standing 16 mm beside it.
     fn back_behind(&self, pose: Pose, site: &Site, behind: f64) -> Manoeuvre {
         let here = Vector2::new(pose.x, pose.y) - site.centre.coords;
         let along_now = here.dot(&site.along);
