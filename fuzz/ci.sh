@@ -2,8 +2,8 @@
 # Builds every fuzz target and runs each for a short while from the committed corpus.
 # A crash fails the script; libFuzzer leaves the input under fuzz/artifacts/<target>/.
 # FUZZ_SECONDS sets the time per target (default 20); FUZZ_DEV=1 builds unoptimised (with overflow
-# checks), a minute quicker to build from cold for a short smoke run. New inputs go to a scratch corpus under
-# fuzz/target/, so the committed corpus only changes on purpose.
+# checks), a minute quicker from cold, for a short smoke run. New inputs go to a scratch corpus
+# under fuzz/target/, so the committed corpus only changes on purpose.
 set -euo pipefail
 cd "$(dirname "$0")"
 seconds="${FUZZ_SECONDS:-20}"
