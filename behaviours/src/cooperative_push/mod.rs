@@ -104,6 +104,9 @@ const PUSH_MPS: f32 = 0.05;
 const REFLEX_ON: u8 = 1;
 /// A phase that takes longer than this has failed.
 const PHASE_LIMIT: Duration = Duration::from_secs(30);
+/// A regroup or a rejoin takes longer: it waits for a lost robot's search (a sweep at 3 cm/s
+/// takes 10 s or more, and is made up to three times) before the team's routes.
+const REGROUP_LIMIT: Duration = Duration::from_secs(60);
 /// Attempts before giving up.
 const MAX_PUSHES: u32 = 2;
 

@@ -18,6 +18,9 @@ const REGROUP_SPACING: f64 = 0.15;
 const REGROUP_BELOW: f64 = 0.045;
 /// A robot whose heading is within about 35° of the push direction faces the box.
 const FACING_BOX_COS: f64 = 0.8;
+/// A robot whose centre is this close to the tape, heading within about 20° of it, stands on it.
+const ON_TAPE_M: f64 = 0.01;
+const ALONG_TAPE_COS: f64 = 0.94;
 /// A route the safety check held is tried again this much later.
 const REGROUP_RETRY: Duration = Duration::from_millis(1000);
 
@@ -202,6 +205,20 @@ impl CooperativePush {
         let on_tape = site.at(clear, 0.0);
         let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
         let start = Manoeuvre::from(pose, MANOEUVRE_MPS);
+        // A robot already standing on the tape behind the box, along it (the helper that waited
+        // there, one found again on it) drives along the tape to its place: the route through
+        // the lane would bring it up onto the tape just behind the box, where the other robot
+        // often stands, and the two would wait on each other for good.
+        let across = here.dot(&site.push);
+        let facing = heading.dot(&site.along);
+        if across.abs() < ON_TAPE_M && facing.abs() > ALONG_TAPE_COS && along_now < -self.box_half {
+            let route = start.straight((behind - along_now) * facing.signum());
+            return if facing < 0.0 {
+                route.turn_to(Site::heading(site.along))
+            } else {
+                route
+            };
+        }
         let start = if heading.dot(&site.push) > FACING_BOX_COS {
             start.back_to(down.x, down.y)
         } else {

@@ -58,10 +58,10 @@ impl CooperativePush {
         }
         if matches!(self.phase, Phase::Regroup | Phase::Rejoin) {
             // A regroup has its own reason, which the phase limit's message would hide.
-            if world.time.saturating_sub(self.phase_since) > PHASE_LIMIT {
+            if world.time.saturating_sub(self.phase_since) > REGROUP_LIMIT {
                 return Some(format!(
                     "the team did not regroup within {:.0} s after: {}",
-                    PHASE_LIMIT.as_secs_f64(),
+                    REGROUP_LIMIT.as_secs_f64(),
                     self.regroup_why.as_deref().unwrap_or("a disturbance")
                 ));
             }
@@ -71,6 +71,7 @@ impl CooperativePush {
             Phase::Approach | Phase::Lapping => PHASE_LIMIT.max(Duration::from_secs_f64(
                 3.0 * self.laps * self.track.length_m() / f64::from(self.speed),
             )),
+            Phase::Regroup | Phase::Rejoin => REGROUP_LIMIT,
             _ => PHASE_LIMIT,
         };
         if world.time.saturating_sub(self.phase_since) > limit {
