@@ -196,9 +196,9 @@ impl Safety {
         world: &WorldSnapshot,
         from: Option<Pose>,
         others_planned: &[(u16, Pose)],
-    ) -> Result<(), String> {
+    ) -> Result<(), Refusal> {
         let Some(me) = world.robot(intent.robot()) else {
-            return Err(format!("robot {} is not in the experiment", intent.robot()));
+            return Err(format!("robot {} is not in the experiment", intent.robot()).into());
         };
         let start = from.unwrap_or(me.pose);
         let Some(path) = self.path(intent, start) else {
@@ -245,7 +245,11 @@ impl Safety {
                     .map(|(_, p)| *p),
             );
             for q in theirs {
-                self.clear_of(me, other, q, (&path, &drift), my_margin, their_margin)?;
+                self.clear_of(me, other, q, (&path, &drift), my_margin, their_margin)
+                    .map_err(|reason| Refusal {
+                        reason,
+                        robot: Some(other.id),
+                    })?;
             }
         }
         Ok(())
@@ -372,8 +376,32 @@ impl Safety {
     }
 
     /// `Ok` when the intent is safe from the robots' current poses.
-    pub fn check(&self, intent: &Intent, world: &WorldSnapshot) -> Result<(), String> {
+    pub fn check(&self, intent: &Intent, world: &WorldSnapshot) -> Result<(), Refusal> {
         self.check_planned(intent, world, None, &[])
+    }
+}
+
+/// Why the safety check held an intent, and the robot it would have touched, if that is why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Refusal {
+    /// What would have gone wrong, in words.
+    pub reason: String,
+    /// The robot it would have touched.
+    pub robot: Option<u16>,
+}
+
+impl From<String> for Refusal {
+    fn from(reason: String) -> Self {
+        Self {
+            reason,
+            robot: None,
+        }
+    }
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.reason)
     }
 }
 

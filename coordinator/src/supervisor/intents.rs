@@ -58,6 +58,10 @@ impl Supervisor {
             intent,
             Intent::Move { .. } | Intent::FollowLine { .. } | Intent::WheelSpeeds { .. }
         );
+        if drives {
+            // Driven by its behaviour, a robot moved aside for a lost one is its own again.
+            self.making_room.remove(&id);
+        }
         if drives && self.relocalising.contains_key(&id) {
             let reason = format!("robot {id} is lost: it is being re-localised");
             self.held.push((world.time, intent, reason));
@@ -75,6 +79,15 @@ impl Supervisor {
 
     /// Passes one intent through the safety check and sends it.
     pub(super) fn carry_out_checked(&mut self, intent: Intent, world: &WorldSnapshot) -> bool {
+        self.try_carry_out(intent, world).is_ok()
+    }
+
+    /// As [`Self::carry_out_checked`]; a held intent names the robot it would have touched.
+    pub(super) fn try_carry_out(
+        &mut self,
+        intent: Intent,
+        world: &WorldSnapshot,
+    ) -> Result<(), Option<u16>> {
         let id = intent.robot();
         let from = self.planned.get(&id).map(Plan::end);
         let others: Vec<(u16, Pose)> = self
@@ -83,10 +96,10 @@ impl Supervisor {
             .filter(|(other, _)| **other != id)
             .map(|(other, plan)| (*other, plan.end()))
             .collect();
-        if let Err(reason) = self.safety.check_planned(&intent, world, from, &others) {
-            warn!(?intent, reason, "intent held back");
-            self.held.push((world.time, intent, reason));
-            return false;
+        if let Err(refusal) = self.safety.check_planned(&intent, world, from, &others) {
+            warn!(?intent, reason = refusal.reason, "intent held back");
+            self.held.push((world.time, intent, refusal.reason));
+            return Err(refusal.robot);
         }
         match intent {
             Intent::Move { command, .. } => {
@@ -108,7 +121,7 @@ impl Supervisor {
             }
         }
         let Some(robot) = self.robot(intent.robot()) else {
-            return true;
+            return Ok(());
         };
         let addr = robot.addr().clone();
         match intent {
@@ -136,7 +149,7 @@ impl Supervisor {
                 }
             }
         }
-        true
+        Ok(())
     }
 
     /// The move sent to `robot` under `number`, if one was, is not the behaviour's: its finish

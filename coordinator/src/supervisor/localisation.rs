@@ -3,6 +3,25 @@
 
 use super::*;
 
+use behaviours::MoveCommand;
+use protocol::packets::DriveMode;
+
+/// A robot that stands in a lost robot's search moves this far along its heading away from it,
+/// at this speed, at most this far in all, and back once the lost robot is found.
+const ROOM_STEP_M: f64 = 0.04;
+const ROOM_MPS: f32 = 0.04;
+const ROOM_MOST_M: f64 = 0.12;
+
+/// A robot moved aside for a lost robot's search.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Room {
+    /// The lost robot.
+    lost: u16,
+    /// Where it stood, and how far it has been moved so far.
+    from: Pose,
+    moved_m: f64,
+}
+
 impl Supervisor {
     /// A robot's sensing contradicted the model: stop it and every robot moving within its
     /// reach, hold its intents, tell the behaviour, and start re-localising it.
@@ -97,10 +116,18 @@ impl Supervisor {
                         tag: RELOCALISATION_TAG,
                     };
                     let number = self.next_move;
-                    if !held.is_empty() || !self.carry_out_checked(intent, world) {
+                    if !held.is_empty() {
                         held.push(command);
-                    } else {
-                        self.disown_move(id, number);
+                        continue;
+                    }
+                    match self.try_carry_out(intent, world) {
+                        Ok(()) => self.disown_move(id, number),
+                        Err(blocker) => {
+                            held.push(command);
+                            if let Some(other) = blocker {
+                                self.make_room(other, id, world);
+                            }
+                        }
                     }
                 }
                 if !held.is_empty() {
@@ -139,6 +166,7 @@ impl Supervisor {
             if view.localisation == behaviours::Localisation::Tracking {
                 info!(robot = id, "robot re-localised");
                 self.relocalising.remove(&id);
+                self.give_room_back(id, &world);
                 // The routine's last word stops its follow along the tape: the robot waits for
                 // its behaviour, which hears it was found, rather than follow on unasked.
                 if let Some(action) = action {
@@ -178,5 +206,103 @@ impl Supervisor {
             "robot not found: searching again"
         );
         self.on_lost(id, "its search found no tape that matches".into(), ctx);
+    }
+
+    /// A lost robot's search move was held because it would touch `other`: a robot standing
+    /// idle and tracked there moves [`ROOM_STEP_M`] along its heading away from the lost one
+    /// (checked like any move), up to [`ROOM_MOST_M`] in all. Without it the two wait on each
+    /// other for good: the lost robot's whole uncertainty region is an exclusion zone, and
+    /// the other's behaviour waits for the lost one to be found (record 0034).
+    fn make_room(&mut self, other: u16, lost: u16, world: &WorldSnapshot) {
+        let (Some(o), Some(l)) = (world.robot(other), world.robot(lost)) else {
+            return;
+        };
+        let w = o.state.wheels;
+        let idle = o.connected
+            && o.localisation == behaviours::Localisation::Tracking
+            && o.pending_moves == 0
+            && o.state.locomotion.mode == DriveMode::Idle as u8
+            && w.left_mps.abs() < 0.005
+            && w.right_mps.abs() < 0.005
+            && !self.planned.contains_key(&other)
+            && !self.relocalising.contains_key(&other);
+        if !idle {
+            return;
+        }
+        let room = *self.making_room.entry(other).or_insert(Room {
+            lost,
+            from: o.pose,
+            moved_m: 0.0,
+        });
+        if room.lost != lost || room.moved_m + ROOM_STEP_M > ROOM_MOST_M + 1e-9 {
+            return;
+        }
+        // Backwards, unless the lost robot stands clearly behind: a robot faces what it drove
+        // up to (a box it pushes beside the lost one, a robot it queues behind), and came from
+        // behind.
+        let (s, c) = o.pose.theta.sin_cos();
+        let behind = (o.pose.x - l.pose.x) * c + (o.pose.y - l.pose.y) * s;
+        let way = if behind > world::robot::LENGTH_M / 2.0 {
+            1.0
+        } else {
+            -1.0
+        };
+        let command = MoveCommand::Straight {
+            distance_m: (ROOM_STEP_M * way) as f32,
+            speed_mps: ROOM_MPS,
+        };
+        let number = self.next_move;
+        let intent = Intent::Move {
+            robot: other,
+            command,
+            tag: RELOCALISATION_TAG,
+        };
+        if self.carry_out_checked(intent, world) {
+            info!(
+                robot = other,
+                lost, "moving aside for a lost robot's search"
+            );
+            self.disown_move(other, number);
+            if let Some(r) = self.making_room.get_mut(&other) {
+                r.moved_m += ROOM_STEP_M;
+            }
+        }
+    }
+
+    /// Lost robot `lost` is found: the robots moved aside for it go back where they stood, where
+    /// their behaviour left them (one it has driven since is its own again); a move back that
+    /// the safety check holds is not made, and the robot's behaviour goes on from where it is.
+    fn give_room_back(&mut self, lost: u16, world: &WorldSnapshot) {
+        let movers: Vec<(u16, Room)> = self
+            .making_room
+            .iter()
+            .filter(|(_, r)| r.lost == lost)
+            .map(|(id, r)| (*id, *r))
+            .collect();
+        for (id, room) in movers {
+            self.making_room.remove(&id);
+            let Some(o) = world.robot(id) else { continue };
+            if room.moved_m == 0.0 || o.pending_moves > 0 || self.planned.contains_key(&id) {
+                continue;
+            }
+            let (s, c) = o.pose.theta.sin_cos();
+            let back = (room.from.x - o.pose.x) * c + (room.from.y - o.pose.y) * s;
+            if back.abs() < 0.003 {
+                continue;
+            }
+            let number = self.next_move;
+            let intent = Intent::Move {
+                robot: id,
+                command: MoveCommand::Straight {
+                    distance_m: back as f32,
+                    speed_mps: ROOM_MPS,
+                },
+                tag: RELOCALISATION_TAG,
+            };
+            if self.carry_out_checked(intent, world) {
+                info!(robot = id, lost, "back where it stood before it made room");
+                self.disown_move(id, number);
+            }
+        }
     }
 }

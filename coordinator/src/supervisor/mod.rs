@@ -111,6 +111,8 @@ pub struct Supervisor {
     relocalising: std::collections::HashMap<u16, Relocaliser>,
     /// Searches each robot's re-localisation has run that found nothing.
     searches: std::collections::HashMap<u16, u32>,
+    /// Robots moved aside for a lost robot's search, by id: for whom, from where, how far.
+    making_room: std::collections::HashMap<u16, localisation::Room>,
     /// Robots whose link came back but whose first state report has not: the behaviour hears
     /// of the link only with it, as until then the robot's intents are held as lost.
     reconnected: std::collections::HashMap<u16, RobotEvent>,
@@ -205,6 +207,7 @@ impl Supervisor {
             move_tags: Default::default(),
             next_move: 0,
             relocalising: Default::default(),
+            making_room: Default::default(),
             searches: Default::default(),
             reconnected: Default::default(),
         }
