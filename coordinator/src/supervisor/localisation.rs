@@ -6,8 +6,8 @@ use super::*;
 use behaviours::MoveCommand;
 use protocol::packets::DriveMode;
 
-/// A robot that stands in a lost robot's search moves this far along its heading away from it,
-/// at this speed, at most this far in all, and back once the lost robot is found.
+/// A robot that stands in a lost robot's search moves this far along its heading, at this speed,
+/// at most this far in all, and back once the lost robot is found.
 const ROOM_STEP_M: f64 = 0.04;
 const ROOM_MPS: f32 = 0.04;
 const ROOM_MOST_M: f64 = 0.12;
@@ -110,23 +110,14 @@ impl Supervisor {
                 tracing::debug!(robot = id, ?moves, "re-localisation moves");
                 let mut held = Vec::new();
                 for command in moves {
-                    let intent = Intent::Move {
-                        robot: id,
-                        command,
-                        tag: RELOCALISATION_TAG,
-                    };
-                    let number = self.next_move;
                     if !held.is_empty() {
                         held.push(command);
                         continue;
                     }
-                    match self.try_carry_out(intent, world) {
-                        Ok(()) => self.disown_move(id, number),
-                        Err(blocker) => {
-                            held.push(command);
-                            if let Some(other) = blocker {
-                                self.make_room(other, id, world);
-                            }
+                    if let Err(blocker) = self.own_move(id, command, world) {
+                        held.push(command);
+                        if let Some(other) = blocker {
+                            self.make_room(other, id, world);
                         }
                     }
                 }
@@ -209,10 +200,10 @@ impl Supervisor {
     }
 
     /// A lost robot's search move was held because it would touch `other`: a robot standing
-    /// idle and tracked there moves [`ROOM_STEP_M`] along its heading away from the lost one
-    /// (checked like any move), up to [`ROOM_MOST_M`] in all. Without it the two wait on each
-    /// other for good: the lost robot's whole uncertainty region is an exclusion zone, and
-    /// the other's behaviour waits for the lost one to be found (record 0034).
+    /// idle and tracked there moves [`ROOM_STEP_M`] along its heading (checked like any move),
+    /// up to [`ROOM_MOST_M`] in all. Without it the two wait on each other for good: the lost
+    /// robot's whole uncertainty region is an exclusion zone, and the other's behaviour waits
+    /// for the lost one to be found (record 0034).
     fn make_room(&mut self, other: u16, lost: u16, world: &WorldSnapshot) {
         let (Some(o), Some(l)) = (world.robot(other), world.robot(lost)) else {
             return;
@@ -251,18 +242,11 @@ impl Supervisor {
             distance_m: (ROOM_STEP_M * way) as f32,
             speed_mps: ROOM_MPS,
         };
-        let number = self.next_move;
-        let intent = Intent::Move {
-            robot: other,
-            command,
-            tag: RELOCALISATION_TAG,
-        };
-        if self.carry_out_checked(intent, world) {
+        if self.own_move(other, command, world).is_ok() {
             info!(
                 robot = other,
                 lost, "moving aside for a lost robot's search"
             );
-            self.disown_move(other, number);
             if let Some(r) = self.making_room.get_mut(&other) {
                 r.moved_m += ROOM_STEP_M;
             }
@@ -290,19 +274,33 @@ impl Supervisor {
             if back.abs() < 0.003 {
                 continue;
             }
-            let number = self.next_move;
-            let intent = Intent::Move {
-                robot: id,
-                command: MoveCommand::Straight {
-                    distance_m: back as f32,
-                    speed_mps: ROOM_MPS,
-                },
-                tag: RELOCALISATION_TAG,
+            let command = MoveCommand::Straight {
+                distance_m: back as f32,
+                speed_mps: ROOM_MPS,
             };
-            if self.carry_out_checked(intent, world) {
+            if self.own_move(id, command, world).is_ok() {
                 info!(robot = id, lost, "back where it stood before it made room");
-                self.disown_move(id, number);
             }
         }
+    }
+
+    /// Sends a move of the supervisor's own (the re-localiser's, or one making room for it)
+    /// through the safety check; the behaviour does not hear of its end. A held one names the
+    /// robot it would have touched.
+    fn own_move(
+        &mut self,
+        robot: u16,
+        command: MoveCommand,
+        world: &WorldSnapshot,
+    ) -> Result<(), Option<u16>> {
+        let number = self.next_move;
+        let intent = Intent::Move {
+            robot,
+            command,
+            tag: RELOCALISATION_TAG,
+        };
+        self.try_carry_out(intent, world)?;
+        self.disown_move(robot, number);
+        Ok(())
     }
 }
