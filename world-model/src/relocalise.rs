@@ -12,7 +12,10 @@
 //! 4. follow the tape with the firmware's line follower for a few centimetres: the follower
 //!    steers the robot along the tape whatever its heading was off by (a bump turns a robot by
 //!    up to 20°, and a creep on the model's heading then leaves the tape), and the model, which
-//!    matches a follower's readings to the tape, tracks the robot again on it.
+//!    matches a follower's readings to the tape, tracks the robot again on it. The follow goes
+//!    on until the robot drives straight along the tape: then it faces along it, which the
+//!    supervisor gives the model as a measurement of its heading
+//!    ([`crate::WorldModel::faces_along_tape`]).
 //!
 //! If the sweep finds no tape, the robot stays stopped and lost: it is safer where it stands than
 //! driving on a guess.
@@ -41,6 +44,16 @@ const STOPPED_MPS: f32 = 0.005;
 /// follower that lost the tape stands still).
 const CREEP_M: f32 = 0.03;
 const FOLLOW_LIMIT: Duration = Duration::from_secs(4);
+/// The follow goes on past [`CREEP_M`] until the robot drives straight along the tape: over the
+/// last [`SETTLE_M`] its odometry turned less than [`SETTLE_RAD`] and the tape sits under the
+/// sensor's middle. Then it faces along the tape, a measurement of its heading that the turns
+/// the follower made to get there cannot spoil; at most [`FOLLOW_MOST_M`] in all.
+const SETTLE_M: f64 = 0.015;
+const SETTLE_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
+const SETTLE_LINE_UM: i16 = 1600;
+const FOLLOW_MOST_M: f64 = 0.08;
+/// `LineState::flags` bit: no spot sees the line.
+const LINE_LOST: u8 = 1;
 /// A search that starts in a junction zone first drives this far beyond the zone's edge.
 const LEAVE_MARGIN_M: f64 = 0.015;
 /// A move the safety check holds is tried again this much later, at most this many times.
@@ -71,8 +84,8 @@ enum Step {
     Aligning,
     /// Following the tape from where the odometry was, since when.
     Following { from: Pose, since: Instant },
-    /// Followed it: the robot stands on the tape, facing along it.
-    Followed,
+    /// Followed it: the robot stands on the tape, facing along it (measured so when `settled`).
+    Followed { settled: bool },
     /// The routine gave up: the robot stays stopped.
     GaveUp,
 }
@@ -109,6 +122,9 @@ pub struct Relocaliser {
     retries: u32,
     /// Moves to try again.
     pending: Vec<MoveCommand>,
+    /// While following: distance followed and odometry heading at each update, over the last
+    /// [`SETTLE_M`] or a little more.
+    trail: std::collections::VecDeque<(f64, f64)>,
 }
 
 impl Relocaliser {
@@ -166,6 +182,7 @@ impl Relocaliser {
                 retry_at: None,
                 retries: 0,
                 pending: Vec::new(),
+                trail: Default::default(),
             },
             Action::Stop,
         )
@@ -185,7 +202,13 @@ impl Relocaliser {
 
     /// Whether the robot is back on the tape, facing along it, with the routine's moves done.
     pub fn aligned(&self) -> bool {
-        self.step == Step::Followed
+        matches!(self.step, Step::Followed { .. })
+    }
+
+    /// Whether the robot ended its follow driving straight along the tape, centred on it: it
+    /// faces along the tape, whatever its odometry says.
+    pub fn settled(&self) -> bool {
+        self.step == Step::Followed { settled: true }
     }
 
     /// The model fixed the robot's position across a tape: stop the sweep there.
@@ -265,16 +288,19 @@ impl Relocaliser {
                     from: view.odometry,
                     since: now,
                 };
+                self.trail.clear();
                 return Some(Action::Follow(SEARCH_MPS));
             }
             Step::Following { from, since } => {
                 let driven = (view.odometry.x - from.x).hypot(view.odometry.y - from.y);
-                if driven < f64::from(CREEP_M)
+                let settled = self.settled_at(driven, view);
+                if !settled
+                    && driven < FOLLOW_MOST_M
                     && now.saturating_duration_since(since) < FOLLOW_LIMIT
                 {
                     return None;
                 }
-                self.step = Step::Followed;
+                self.step = Step::Followed { settled };
                 return Some(Action::Stop);
             }
             _ => {}
@@ -299,6 +325,31 @@ impl Relocaliser {
         };
         self.outstanding += moves.len();
         Some(Action::Moves(moves))
+    }
+
+    /// Takes one update of the follow, `driven` along it so far: whether the robot has followed
+    /// [`CREEP_M`] and now drives straight along the tape, centred on it.
+    fn settled_at(&mut self, driven: f64, view: &RobotView) -> bool {
+        let theta = view.odometry.theta;
+        self.trail.push_back((driven, theta));
+        while self.trail.len() > 2 && driven - self.trail[1].0 >= SETTLE_M {
+            self.trail.pop_front();
+        }
+        let line = view.state.line;
+        let spans = self
+            .trail
+            .front()
+            .is_some_and(|&(d, _)| driven - d >= SETTLE_M);
+        let turned = self
+            .trail
+            .iter()
+            .map(|&(_, t)| wrap_angle(t - theta).abs())
+            .fold(0.0, f64::max);
+        driven >= f64::from(CREEP_M)
+            && spans
+            && turned < SETTLE_RAD
+            && line.flags & LINE_LOST == 0
+            && line.position_um.abs() <= SETTLE_LINE_UM
     }
 
     /// Face across the tape, the way nearer the robot's heading; out to the side the model puts
@@ -417,6 +468,13 @@ mod tests {
 
     const ROOM: ([f64; 2], [f64; 2]) = ([0.0, 0.0], [10.0, 10.0]);
 
+    /// Finishes `n` moves of the routine.
+    fn finish(r: &mut Relocaliser, n: usize) {
+        for _ in 0..n {
+            r.move_finished(true);
+        }
+    }
+
     /// The distances of moves that must all be straight.
     fn straights(moves: &[MoveCommand]) -> Vec<f32> {
         moves
@@ -493,9 +551,7 @@ mod tests {
             "faces +x as it drove: {angle_deg}"
         );
         assert!(!r.aligned());
-        for _ in &align {
-            r.move_finished(true);
-        }
+        finish(&mut r, align.len());
         // Then it follows the tape for a few centimetres, and stops.
         assert_eq!(
             r.poll(&fixed, &world.track, now),
@@ -517,8 +573,7 @@ mod tests {
         let now = Instant::now();
         let lost = view(0.3, 0.225, 0.1);
         let (mut r, sweep) = swept(&lost, ROOM);
-        r.move_finished(true);
-        r.move_finished(true);
+        finish(&mut r, 2);
         let mut pending = sweep[2..].to_vec();
         let through = straights(&pending)[0];
         let mut t = now;
@@ -630,5 +685,46 @@ mod tests {
             panic!("a stopped robot searches at once");
         };
         assert_eq!(moves.len(), 4, "{moves:?}");
+    }
+
+    /// The follow goes on past the creep while the follower still turns the robot onto the
+    /// tape, and ends once it drives straight along it (then it faces along the tape); one that
+    /// never settles ends at the longest follow, not settled.
+    #[test]
+    fn the_follow_ends_once_the_robot_drives_straight_along_the_tape() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let follow = |turning_mm: u32| {
+            let lost = view(0.3, 0.225, 0.1);
+            let (mut r, _) = swept(&lost, ROOM);
+            r.fixed(now);
+            let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
+            let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
+                panic!("aligning");
+            };
+            finish(&mut r, align.len());
+            assert_eq!(
+                r.poll(&fixed, &world.track, now),
+                Some(Action::Follow(SEARCH_MPS))
+            );
+            // The follower turns it by half a degree per millimetre for `turning_mm`.
+            let mut v = fixed.clone();
+            for mm in 1..200 {
+                v.odometry.x = f64::from(mm) * 0.001;
+                v.odometry.theta = -(f64::from(mm.min(turning_mm)) * 0.5).to_radians();
+                if let Some(a) = r.poll(&v, &world.track, now) {
+                    assert_eq!(a, Action::Stop);
+                    return (mm, r.settled());
+                }
+            }
+            panic!("the follow never ended");
+        };
+        // Straight from the start: it ends at the creep.
+        assert_eq!(follow(0), (30, true));
+        // Turning for 40 mm: it ends once 15 mm of it turned less than 2°.
+        let (mm, settled) = follow(40);
+        assert!(settled && (50..=52).contains(&mm), "{mm}");
+        // Turning all the way: it ends at the longest follow, not settled.
+        assert_eq!(follow(500), (80, false));
     }
 }

@@ -210,12 +210,13 @@ impl Safety {
         // side by side) could otherwise never move (record 0031).
         let my_margin = self.berth(me);
         let drift = self.drift(me, &path);
-        // Against the walls the mover is taken at 1σ of its position alone: a search leg widened
-        // by its heading's wedge, or its footprint by a turn, held searches beside a wall that
-        // found their robots before (a follower knocked off a bend, `traffic_control` robots
-        // by the arena's edge), and its reflex sees a wall ahead.
+        // Against the walls the mover is taken at 1σ of its position, widened to its sides by
+        // its path's wedge of 1σ of heading, but not grown for a turn or ahead: that held
+        // searches towards a wall that found their robots before (a follower knocked off a
+        // bend, `traffic_control` robots by the arena's edge). Without the wedge, a search leg
+        // driven 19° off the model's heading (1σ: 15°) met the wall.
         let wall_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
-        self.within_arena(me, &path, wall_margin, world.arena)?;
+        self.within_arena(me, (&path, &drift), wall_margin, world.arena)?;
         let widest_drift = drift.iter().map(|g| g.side + g.all).fold(0.0, f64::max);
         let broad = Broad::new(self, &path, my_margin + widest_drift);
         let widest_margin = world
@@ -282,12 +283,18 @@ impl Safety {
     fn within_arena(
         &self,
         me: &RobotView,
-        path: &[Pose],
+        (path, drift): (&[Pose], &[Growth]),
         my_margin: f64,
         (w, h): (f64, f64),
     ) -> Result<(), String> {
-        for p in path {
-            for c in Footprint::new(*p, self.length_m, self.width_m, my_margin).corners() {
+        for (p, g) in path.iter().zip(drift) {
+            let grown = Footprint::new(
+                *p,
+                self.length_m,
+                self.width_m + 2.0 * g.side,
+                my_margin + g.all,
+            );
+            for c in grown.corners() {
                 if c.0 < 0.0 || c.1 < 0.0 || c.0 > w || c.1 > h {
                     return Err(format!(
                         "robot {} would leave the arena at ({:.3}, {:.3})",

@@ -155,7 +155,8 @@ impl Supervisor {
         };
         if routine.aligned() {
             if view.localisation == behaviours::Localisation::Tracking {
-                info!(robot = id, "robot re-localised");
+                let settled = routine.settled() && self.model.faces_along_tape(id);
+                info!(robot = id, settled, "robot re-localised");
                 self.relocalising.remove(&id);
                 self.give_room_back(id, &world);
                 // The routine's last word stops its follow along the tape: the robot waits for
@@ -196,6 +197,7 @@ impl Supervisor {
             searches = *searches,
             "robot not found: searching again"
         );
+        self.model.search_afresh(id, Instant::now());
         self.on_lost(id, "its search found no tape that matches".into(), ctx);
     }
 

@@ -48,6 +48,9 @@ const ALIGNED_MAX_RAD: f64 = 35.0 * PI / 180.0;
 /// stop against an obstacle) leave several centimetres there.
 const MARK_GATE_M: f64 = 0.1;
 const MARK_GAIN: f64 = 0.8;
+/// A position uncertainty (1σ) beyond this comes from a loss or a bump that widened the
+/// estimate, not from odometry: then a follower's mark gate is the uncertainty's too.
+const WIDENED_SIGMA_M: f64 = 0.01;
 /// A robot driving moves takes a change of colour as a mark's end only after the old colour held
 /// for this much travel.
 const MARK_SETTLED_M: f64 = 0.02;

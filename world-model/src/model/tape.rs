@@ -3,7 +3,71 @@
 
 use super::*;
 
+/// A follower that drives straight along a straight tape, centred on it, faces along it to
+/// within its weave, and its centre is on the tape to within this: the variances
+/// [`WorldModel::faces_along_tape`] leaves.
+const SETTLED_HEADING_RAD2: f64 = (3.0 * PI / 180.0) * (3.0 * PI / 180.0);
+const SETTLED_LATERAL_M2: f64 = 0.002 * 0.002;
+
 impl WorldModel {
+    /// Robot `id` has followed the tape and now drives straight along it, centred on it (the
+    /// re-localiser saw it so): a measurement that its heading is the tape's and its centre on
+    /// the tape, which replaces what the estimate had for both. The turns the follower made to
+    /// get there are counted in the odometry, and with them any heading the robot was off by
+    /// when it started to follow, which the tape's gentle heading gain takes seconds to undo.
+    /// Only on a straight tape clear of junctions and ends, where a follower's heading is the
+    /// tape's; returns whether the measurement was taken.
+    pub fn faces_along_tape(&self, id: u16) -> bool {
+        let Some(mut e) = self.estimates.get_mut(&id) else {
+            return false;
+        };
+        let (Some(odometry), Some(&(_, pose))) = (e.last_odometry, e.recent.back()) else {
+            return false;
+        };
+        let centre = Point2::new(pose.x, pose.y);
+        let Some(n) = self.track.nearest(centre) else {
+            return false;
+        };
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        let len = self.track.edge_length(n.edge);
+        let plain = !self.track.edges()[n.edge].is_arc()
+            && self.clear_of_ends(&n, len)
+            && !self.in_junction(n.point)
+            && n.distance_m < MATCH_MAX_M
+            && n.tangent.dot(&heading).abs() > ALIGNED_MAX_RAD.cos();
+        if !plain {
+            return false;
+        }
+        let tape_dir = n.tangent * n.tangent.dot(&heading).signum();
+        // Not a filter update: the follower's heading corrections (a fixed gain) leave the
+        // heading's variance under a degree whatever the turn the follow made, so a gain
+        // computed from it would hardly move the estimate. The measurement replaces the heading
+        // and the position across the tape; along the tape the estimate stays as uncertain as
+        // it was, and nothing it knew across or in heading is kept.
+        let t = Vector2::new(n.tangent.x, n.tangent.y);
+        let normal = Vector2::new(-t.y, t.x);
+        let along_var = sigma_along(&e.cov, t).powi(2);
+        let xy = t * t.transpose() * along_var + normal * normal.transpose() * SETTLED_LATERAL_M2;
+        let mut cov = Matrix3::zeros();
+        cov.fixed_view_mut::<2, 2>(0, 0).copy_from(&xy);
+        cov[(2, 2)] = SETTLED_HEADING_RAD2;
+        let on = centre + normal * normal.dot(&(n.point - centre));
+        let p = Vector3::new(on.x, on.y, tape_dir.y.atan2(tape_dir.x));
+        let better = Pose {
+            x: p[0],
+            y: p[1],
+            theta: p[2],
+        };
+        e.cov = cov;
+        e.correction = Correction::between(odometry, better);
+        if let Some(last) = e.recent.back_mut() {
+            last.1 = better;
+        }
+        drop(e);
+        self.show_bump(id, Some(better), false);
+        true
+    }
+
     /// The tape nearest the line sensor at `sensor`, when the robot faces along it (facing
     /// `heading`) clear of tape ends and junctions, where the model expects the sensor to see it
     /// if near enough; `cov` gives the uncertainty across it.

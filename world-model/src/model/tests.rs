@@ -669,3 +669,71 @@ fn a_bump_of_metres_moves_the_estimate_no_farther_than_a_bump_can() {
         v.uncertainty
     );
 }
+
+/// A follower that drives straight along a straight tape faces along it: the measurement takes
+/// out a heading error its odometry carried in (here 12°, which the tape's own gentle gain
+/// would take seconds to undo), and leaves the heading as certain as a follower's weave. Near a
+/// junction, where tapes cross, it measures nothing.
+#[test]
+fn a_settled_follower_faces_along_its_tape() {
+    let mut d = on_the_tape_at_x(0.3, true);
+    d.odometry.theta += 12f64.to_radians();
+    d.report();
+    let off = d.view().pose.theta.abs();
+    assert!(off > 10f64.to_radians(), "{}", off.to_degrees());
+    assert!(d.model.faces_along_tape(1));
+    let v = d.view();
+    assert!(
+        v.pose.theta.abs() < 1f64.to_radians(),
+        "{}",
+        v.pose.theta.to_degrees()
+    );
+    assert!((v.pose.y - 0.2).abs() < 0.001, "{}", v.pose.y);
+    assert!(
+        v.uncertainty.heading_rad < 3.5f64.to_radians(),
+        "{}",
+        v.uncertainty.heading_rad.to_degrees()
+    );
+    // The next update keeps it: the correction now takes the odometry to the tape's heading.
+    d.report();
+    assert!(d.view().pose.theta.abs() < 1f64.to_radians());
+    let at_node = on_the_tape_at_x(0.21, true);
+    assert!(!at_node.model.faces_along_tape(1));
+}
+
+/// A search that ended unfound starts afresh: a fix across a tape that the search then gave up
+/// on is forgotten, so the next crossing fixes the robot again (before, the next searches'
+/// sightings could never fix it, and it ended `lost and not found`).
+#[test]
+fn a_search_that_ended_unfound_can_fix_the_robot_again() {
+    let world = presets::grid(4, 4, 1);
+    let mut d = Drive::new(
+        world.track.clone(),
+        Pose {
+            x: 0.2,
+            y: 0.2,
+            theta: 0.0,
+        },
+    );
+    d.drive_to(0.27, 0.2, 0.0, 0.0);
+    d.truth.y += 0.03;
+    d.drive_to(0.35, 0.23, 0.0, 0.0);
+    assert!(matches!(d.transitions.first(), Some(Transition::Lost(_))));
+    d.drive_to(d.truth.x, 0.15, 0.0, 0.0);
+    let fixes = |d: &Drive| {
+        d.transitions
+            .iter()
+            .filter(|t| **t == Transition::Fixed)
+            .count()
+    };
+    assert_eq!(fixes(&d), 1, "{:?}", d.transitions);
+    // Back across the tape: a fixed estimate takes no second fix.
+    d.drive_to(d.truth.x, 0.25, 0.0, 0.0);
+    assert_eq!(fixes(&d), 1, "{:?}", d.transitions);
+    d.model.search_afresh(1, d.at);
+    let v = d.view();
+    assert_eq!(v.localisation, Localisation::Lost);
+    assert!(v.uncertainty.position_m >= LOST_FLOOR_M * 0.99);
+    d.drive_to(d.truth.x, 0.15, 0.0, 0.0);
+    assert_eq!(fixes(&d), 2, "{:?}", d.transitions);
+}

@@ -219,10 +219,15 @@ impl WorldModel {
         // off a mark and back), and the end must be within what its uncertainty allows.
         let settled = following
             || (e.mark_held_m > MARK_SETTLED_M && driven.abs() > 1e-4 && turned.abs() < 0.01);
-        let gate_m = if following {
+        // A follower's odometry slips by more than its covariance says, so its gate is wide;
+        // but an estimate widened by a loss or a bump is honest about how far off it may be,
+        // and a mark end beyond that is another mark's (one 56 mm off moved a robot just found
+        // onto the wrong end and it drove into another).
+        let sigma_m = sigmas(&e.cov).position_m;
+        let gate_m = if following && sigma_m < WIDENED_SIGMA_M {
             MARK_GATE_M
         } else {
-            (3.0 * sigmas(&e.cov).position_m).clamp(MARK_GATE_MIN_M, MARK_GATE_M)
+            (3.0 * sigma_m).clamp(MARK_GATE_MIN_M, MARK_GATE_M)
         };
         if mark == e.last_mark || !settled {
             return pose;
@@ -419,9 +424,23 @@ impl WorldModel {
         })
     }
 
+    /// The search for lost robot `id` ended without finding it (no tape seen, or the tape it
+    /// was put on did not match as it followed it): the next search starts afresh, its position
+    /// across a tape not fixed (a fix the follow disproved would otherwise keep the next
+    /// search's sightings from fixing it again) and as uncertain as a robot just found lost.
+    pub fn search_afresh(&self, id: u16, at: tokio::time::Instant) {
+        let Some(mut e) = self.estimates.get_mut(&id) else {
+            return;
+        };
+        start_lost(&mut e, at);
+        widen(&mut e.cov, LOST_FLOOR_M, LOST_FLOOR_RAD);
+        drop(e);
+        self.show_bump(id, None, true);
+    }
+
     /// Writes what a bump did to robot `id`'s estimate into its view: its uncertainty, its pose
     /// when the bump moved it, and lost when it is.
-    fn show_bump(&self, id: u16, pose: Option<Pose>, lost: bool) {
+    pub(super) fn show_bump(&self, id: u16, pose: Option<Pose>, lost: bool) {
         let Some(uncertainty) = self.estimates.get_mut(&id).map(|mut e| {
             let u = sigmas(&e.cov);
             e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(u.position_m);
