@@ -11,6 +11,14 @@ use protocol::packets::DriveMode;
 const ROOM_STEP_M: f64 = 0.04;
 const ROOM_MPS: f32 = 0.04;
 const ROOM_MOST_M: f64 = 0.12;
+/// Wheels slower than this are at rest.
+const AT_REST_MPS: f32 = 0.005;
+
+/// Whether a robot's wheels turn.
+fn wheels_turn(v: &behaviours::RobotView) -> bool {
+    let w = v.state.wheels;
+    w.left_mps.abs() > AT_REST_MPS || w.right_mps.abs() > AT_REST_MPS
+}
 
 /// A robot moved aside for a lost robot's search.
 #[derive(Clone, Copy, Debug)]
@@ -57,9 +65,7 @@ impl Supervisor {
             .iter()
             .filter(|o| o.id != id && !self.relocalising.contains_key(&o.id))
             .filter(|o| {
-                let moving = o.pending_moves > 0
-                    || o.state.wheels.left_mps.abs() > 0.005
-                    || o.state.wheels.right_mps.abs() > 0.005;
+                let moving = o.pending_moves > 0 || wheels_turn(o);
                 let planned = self.planned.get(&o.id).map_or(o.pose, Plan::end);
                 let within = |p: Pose| (p.x - view.pose.x).hypot(p.y - view.pose.y) < reach;
                 moving && (within(o.pose) || within(planned))
@@ -210,13 +216,11 @@ impl Supervisor {
         let (Some(o), Some(l)) = (world.robot(other), world.robot(lost)) else {
             return;
         };
-        let w = o.state.wheels;
         let idle = o.connected
             && o.localisation == behaviours::Localisation::Tracking
             && o.pending_moves == 0
             && o.state.locomotion.mode == DriveMode::Idle as u8
-            && w.left_mps.abs() < 0.005
-            && w.right_mps.abs() < 0.005
+            && !wheels_turn(o)
             && !self.planned.contains_key(&other)
             && !self.relocalising.contains_key(&other);
         if !idle {

@@ -44,19 +44,18 @@ impl WorldModel {
         // computed from it would hardly move the estimate. The measurement replaces the heading
         // and the position across the tape; along the tape the estimate stays as uncertain as
         // it was, and nothing it knew across or in heading is kept.
-        let t = Vector2::new(n.tangent.x, n.tangent.y);
+        let t = n.tangent;
         let normal = Vector2::new(-t.y, t.x);
         let along_var = sigma_along(&e.cov, t).powi(2);
         let xy = t * t.transpose() * along_var + normal * normal.transpose() * SETTLED_LATERAL_M2;
         let mut cov = Matrix3::zeros();
         cov.fixed_view_mut::<2, 2>(0, 0).copy_from(&xy);
         cov[(2, 2)] = SETTLED_HEADING_RAD2;
-        let on = centre + normal * normal.dot(&(n.point - centre));
-        let p = Vector3::new(on.x, on.y, tape_dir.y.atan2(tape_dir.x));
+        // The tape's nearest point to the centre: the centre moved straight across onto it.
         let better = Pose {
-            x: p[0],
-            y: p[1],
-            theta: p[2],
+            x: n.point.x,
+            y: n.point.y,
+            theta: tape_dir.y.atan2(tape_dir.x),
         };
         e.cov = cov;
         e.correction = Correction::between(odometry, better);
@@ -64,7 +63,7 @@ impl WorldModel {
             last.1 = better;
         }
         drop(e);
-        self.show_bump(id, Some(better), false);
+        self.show_estimate(id, Some(better), false);
         true
     }
 

@@ -337,11 +337,9 @@ fn uncertainty_grows_off_the_tape_and_shrinks_on_it() {
     assert!(d.transitions.is_empty(), "{:?}", d.transitions);
 }
 
-/// Kicked 30 mm sideways off the tape it drives along, a robot no longer sees the tape where
-/// the model puts it: it is lost within a few centimetres. Creeping across, its sensor finds
-/// the tape, which fixes the position across it; driving along it again, it is tracked.
-#[test]
-fn a_kicked_robot_is_found_lost_and_relocated_by_the_tape() {
+/// A robot driving moves along the tape at y = 0.2 of a grid, kicked 30 mm off it at the x it
+/// returns, then driven on to (0.35, 0.23).
+fn kicked_off_the_tape() -> (Drive, f64) {
     let world = presets::grid(4, 4, 1);
     let mut d = Drive::new(
         world.track.clone(),
@@ -355,6 +353,15 @@ fn a_kicked_robot_is_found_lost_and_relocated_by_the_tape() {
     d.truth.y += 0.03;
     let kicked_at = d.truth.x;
     d.drive_to(0.35, 0.23, 0.0, 0.0);
+    (d, kicked_at)
+}
+
+/// Kicked 30 mm sideways off the tape it drives along, a robot no longer sees the tape where
+/// the model puts it: it is lost within a few centimetres. Creeping across, its sensor finds
+/// the tape, which fixes the position across it; driving along it again, it is tracked.
+#[test]
+fn a_kicked_robot_is_found_lost_and_relocated_by_the_tape() {
+    let (mut d, kicked_at) = kicked_off_the_tape();
     let lost_after = match d.transitions.first() {
         Some(Transition::Lost(why)) => {
             assert!(why.contains("no tape"), "{why}");
@@ -706,18 +713,7 @@ fn a_settled_follower_faces_along_its_tape() {
 /// sightings could never fix it, and it ended `lost and not found`).
 #[test]
 fn a_search_that_ended_unfound_can_fix_the_robot_again() {
-    let world = presets::grid(4, 4, 1);
-    let mut d = Drive::new(
-        world.track.clone(),
-        Pose {
-            x: 0.2,
-            y: 0.2,
-            theta: 0.0,
-        },
-    );
-    d.drive_to(0.27, 0.2, 0.0, 0.0);
-    d.truth.y += 0.03;
-    d.drive_to(0.35, 0.23, 0.0, 0.0);
+    let (mut d, _) = kicked_off_the_tape();
     assert!(matches!(d.transitions.first(), Some(Transition::Lost(_))));
     d.drive_to(d.truth.x, 0.15, 0.0, 0.0);
     let fixes = |d: &Drive| {

@@ -365,7 +365,7 @@ impl WorldModel {
                 BUMP_TURN_RAD,
             );
             drop(e);
-            self.show_bump(id, None, false);
+            self.show_estimate(id, None, false);
             return None;
         }
         // A small jolt straight along the heading is what a robot's own drive into something
@@ -387,7 +387,7 @@ impl WorldModel {
             e.correction = Correction::between(odometry, back);
             widen(&mut e.cov, BUMP_MARGIN * moved_m, SMALL_BUMP_TURN_RAD);
             drop(e);
-            self.show_bump(id, Some(back), false);
+            self.show_estimate(id, Some(back), false);
             return None;
         }
         if e.lost.is_none() {
@@ -416,7 +416,7 @@ impl WorldModel {
             BUMP_TURN_RAD,
         );
         drop(e);
-        self.show_bump(id, pose, true);
+        self.show_estimate(id, pose, true);
         Some(if wheels_only {
             "its wheels turned while it stood where its line sensor cannot tell a shift".into()
         } else {
@@ -435,12 +435,13 @@ impl WorldModel {
         start_lost(&mut e, at);
         widen(&mut e.cov, LOST_FLOOR_M, LOST_FLOOR_RAD);
         drop(e);
-        self.show_bump(id, None, true);
+        self.show_estimate(id, None, true);
     }
 
-    /// Writes what a bump did to robot `id`'s estimate into its view: its uncertainty, its pose
-    /// when the bump moved it, and lost when it is.
-    pub(super) fn show_bump(&self, id: u16, pose: Option<Pose>, lost: bool) {
+    /// Writes robot `id`'s estimate, changed outside a state update (a bump, a search begun
+    /// afresh, a settled follow), into its view: its uncertainty, its pose when that moved, and
+    /// lost when it is.
+    pub(super) fn show_estimate(&self, id: u16, pose: Option<Pose>, lost: bool) {
         let Some(uncertainty) = self.estimates.get_mut(&id).map(|mut e| {
             let u = sigmas(&e.cov);
             e.stats.worst_uncertainty_m = e.stats.worst_uncertainty_m.max(u.position_m);
