@@ -119,6 +119,9 @@ pub struct TokenRing {
     /// robots moving near it, whose detours and turns go on from where they stand once it is
     /// found.
     forgive_until: Duration,
+    /// Robots lost and not yet found again: what they sense while their search turns them
+    /// about (another robot seen ahead) is no pass of the token.
+    lost: std::collections::BTreeSet<u16>,
     /// When each robot last backed away to make room.
     room_made: BTreeMap<u16, Duration>,
     odometer: Odometer,
@@ -167,6 +170,7 @@ impl Register for TokenRing {
             detours: 0,
             last_pass: Duration::ZERO,
             forgive_until: Duration::ZERO,
+            lost: Default::default(),
             room_made: BTreeMap::new(),
             odometer: Odometer::new(),
             verdict: None,

@@ -265,7 +265,11 @@ impl Behaviour for TokenRing {
         match event {
             // The carrier's front receiver identified the robot ahead of it.
             Event::Sighting(e)
-                if robot == self.holder && e.side == Side::Front && !self.turning =>
+                if robot == self.holder
+                    && e.side == Side::Front
+                    && !self.turning
+                    && !self.lost.contains(&robot)
+                    && !self.lost.contains(&e.robot) =>
             {
                 let Some(view) = world.robot(robot) else {
                     return Vec::new();
@@ -310,13 +314,19 @@ impl Behaviour for TokenRing {
     /// one's once it is found (its intents are held until then).
     fn on_localisation(
         &mut self,
-        _robot: u16,
+        robot: u16,
         event: &LocalisationEvent,
         world: &WorldSnapshot,
         _team: &mut Team,
     ) -> Vec<Intent> {
-        if matches!(event, LocalisationEvent::Lost { .. }) {
-            self.forgive_until = world.time + LOST_STOPS;
+        match event {
+            LocalisationEvent::Lost { .. } => {
+                self.forgive_until = world.time + LOST_STOPS;
+                self.lost.insert(robot);
+            }
+            LocalisationEvent::Found => {
+                self.lost.remove(&robot);
+            }
         }
         Vec::new()
     }
@@ -426,5 +436,41 @@ mod tests {
         let (mut h, world) = standing(180.0);
         let out = h.hold(held_step(1), "in the way", &world);
         assert!(!backs_away(&out, 2), "{out:?}");
+    }
+
+    /// A lost robot's search turns it about, and what its front receiver then sees (the robot
+    /// beside or behind it) is no pass of the token: a pass waits until it is found.
+    #[test]
+    fn a_lost_carrier_passes_no_token() {
+        let (mut h, world) = standing(0.0);
+        // Robot 1 carries the token; robot 2 stands behind it, facing it.
+        let seen = Event::Sighting(behaviour_api::Sighting {
+            robot: 2,
+            side: Side::Front,
+            relative_heading_deg: 180,
+            range_mm: 60,
+            message: 0,
+        });
+        let turned = snapshot()
+            .arena(1.0, 0.6)
+            .robot(1, 0.40, 0.15, 180.0)
+            .robot(2, 0.32, 0.15, 0.0)
+            .at(2.5)
+            .build();
+        h.localise(
+            1,
+            LocalisationEvent::Lost {
+                why: "bumped".into(),
+            },
+            &world,
+        );
+        h.event(1, seen, &turned);
+        assert_eq!(h.behaviour().passes, 0);
+        assert_eq!(h.behaviour().holder, 1);
+        // Found again, the same sighting passes it.
+        h.localise(1, LocalisationEvent::Found, &turned);
+        h.event(1, seen, &turned);
+        assert_eq!(h.behaviour().passes, 1);
+        assert_eq!(h.behaviour().holder, 2);
     }
 }
