@@ -56,6 +56,9 @@ const FOLLOW_MOST_M: f64 = 0.08;
 const LINE_LOST: u8 = 1;
 /// A search that starts in a junction zone first drives this far beyond the zone's edge.
 const LEAVE_MARGIN_M: f64 = 0.015;
+/// A routine whose moves are outstanding while the robot has stood with an empty queue this long
+/// has lost their ends (a stop that came after them dropped them): it goes on without them.
+const STALLED_AFTER: Duration = Duration::from_millis(1500);
 /// A move the safety check holds is tried again this much later, at most this many times.
 const RETRY_AFTER: Duration = Duration::from_millis(500);
 const MAX_RETRIES: u32 = 20;
@@ -125,6 +128,9 @@ pub struct Relocaliser {
     /// While following: distance followed and odometry heading at each update, over the last
     /// [`SETTLE_M`] or a little more.
     trail: std::collections::VecDeque<(f64, f64)>,
+    /// Since when the robot has stood with an empty queue while moves of the routine are
+    /// outstanding.
+    idle_since: Option<Instant>,
 }
 
 impl Relocaliser {
@@ -183,6 +189,7 @@ impl Relocaliser {
                 retries: 0,
                 pending: Vec::new(),
                 trail: Default::default(),
+                idle_since: None,
             },
             Action::Stop,
         )
@@ -282,6 +289,7 @@ impl Relocaliser {
             self.outstanding += moves.len();
             return Some(Action::Moves(moves));
         }
+        self.catch_stall(view, now);
         match self.step {
             Step::Aligning if self.outstanding == 0 && self.pending.is_empty() => {
                 self.step = Step::Following {
@@ -325,6 +333,34 @@ impl Relocaliser {
         };
         self.outstanding += moves.len();
         Some(Action::Moves(moves))
+    }
+
+    /// Moves outstanding while the robot stands with an empty queue: their ends will not come
+    /// (a stop sent after them dropped them, and a dropped move's end counts for nothing). After
+    /// [`STALLED_AFTER`] the routine goes on as if they had ended: a sweep that ran out found no
+    /// tape, an alignment drives on to the follow. Without it the routine waited for good, the
+    /// robot stopped and every intent for it held, until the run's time ran out.
+    fn catch_stall(&mut self, view: &RobotView, now: Instant) {
+        let wheels = view.state.wheels;
+        let idle = matches!(self.step, Step::Sweeping | Step::Aligning)
+            && self.outstanding > 0
+            && self.pending.is_empty()
+            && view.state.locomotion.queue_len == 0
+            && wheels.left_mps.abs() < STOPPED_MPS
+            && wheels.right_mps.abs() < STOPPED_MPS;
+        if !idle {
+            self.idle_since = None;
+            return;
+        }
+        let since = *self.idle_since.get_or_insert(now);
+        if now.saturating_duration_since(since) < STALLED_AFTER {
+            return;
+        }
+        self.idle_since = None;
+        self.outstanding = 0;
+        if self.step == Step::Sweeping {
+            self.step = Step::GaveUp;
+        }
     }
 
     /// Takes one update of the follow, `driven` along it so far: whether the robot has followed
@@ -726,5 +762,28 @@ mod tests {
         assert!(settled && (50..=52).contains(&mm), "{mm}");
         // Turning all the way: it ends at the longest follow, not settled.
         assert_eq!(follow(500), (80, false));
+    }
+
+    /// Sweep moves whose ends never come (a later stop dropped them) while the robot stands
+    /// with an empty queue: after a while the sweep counts as run out; a robot that still has
+    /// moves queued is waited for.
+    #[test]
+    fn a_sweep_whose_moves_were_dropped_does_not_wait_for_ever() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, sweep) = swept(&lost, ROOM);
+        assert!(!sweep.is_empty());
+        let mut queued = lost.clone();
+        queued.state.locomotion.queue_len = 2;
+        let later = now + STALLED_AFTER + Duration::from_millis(100);
+        assert_eq!(r.poll(&queued, &world.track, now), None);
+        assert_eq!(r.poll(&queued, &world.track, later), None);
+        assert!(!r.gave_up(), "a robot with moves queued is waited for");
+        // Standing with an empty queue from `later` on.
+        assert_eq!(r.poll(&lost, &world.track, later), None);
+        assert!(!r.gave_up(), "not at once");
+        r.poll(&lost, &world.track, later + STALLED_AFTER);
+        assert!(r.gave_up(), "the sweep ran out");
     }
 }
