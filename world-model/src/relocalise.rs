@@ -316,9 +316,7 @@ impl Relocaliser {
         let Step::Braking { since, then } = self.step else {
             return None;
         };
-        let wheels = view.state.wheels;
-        let stopped = wheels.left_mps.abs() < STOPPED_MPS && wheels.right_mps.abs() < STOPPED_MPS;
-        if !stopped && now.saturating_duration_since(since) < BRAKE_LIMIT {
+        if !stands(view) && now.saturating_duration_since(since) < BRAKE_LIMIT {
             return None;
         }
         let moves = match then {
@@ -341,13 +339,11 @@ impl Relocaliser {
     /// tape, an alignment drives on to the follow. Without it the routine waited for good, the
     /// robot stopped and every intent for it held, until the run's time ran out.
     fn catch_stall(&mut self, view: &RobotView, now: Instant) {
-        let wheels = view.state.wheels;
         let idle = matches!(self.step, Step::Sweeping | Step::Aligning)
             && self.outstanding > 0
             && self.pending.is_empty()
             && view.state.locomotion.queue_len == 0
-            && wheels.left_mps.abs() < STOPPED_MPS
-            && wheels.right_mps.abs() < STOPPED_MPS;
+            && stands(view);
         if !idle {
             self.idle_since = None;
             return;
@@ -463,6 +459,12 @@ impl Relocaliser {
         moves.push(turn_to(pose.theta, along.y.atan2(along.x)));
         moves
     }
+}
+
+/// Whether both of the robot's wheels have stopped.
+fn stands(view: &RobotView) -> bool {
+    let w = view.state.wheels;
+    w.left_mps.abs() < STOPPED_MPS && w.right_mps.abs() < STOPPED_MPS
 }
 
 /// How far from `at` along the unit `dir` a point stays within `room` (lower and upper corners);
