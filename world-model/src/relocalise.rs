@@ -131,6 +131,8 @@ pub struct Relocaliser {
     /// Since when the robot has stood with an empty queue while moves of the routine are
     /// outstanding.
     idle_since: Option<Instant>,
+    /// The turns of the alignment under way, sent again if the reflex stops its nudge.
+    align_turns: Vec<MoveCommand>,
 }
 
 impl Relocaliser {
@@ -190,6 +192,7 @@ impl Relocaliser {
                 pending: Vec::new(),
                 trail: Default::default(),
                 idle_since: None,
+                align_turns: Vec::new(),
             },
             Action::Stop,
         )
@@ -247,8 +250,22 @@ impl Relocaliser {
     /// something stands close in its way, and this search cannot go on from here. (Searching the
     /// other side from there drove a pusher stopped by the box back into its neighbour: the
     /// search's moves are checked with the lost robot's 1σ.)
-    pub fn blocked(&mut self) {
+    ///
+    /// While aligning, the robot already stands on the tape it found: a reflex that stops the
+    /// nudge onto it (a robot or a box close ahead on the tape) costs only the nudge, and the
+    /// turn along the tape is sent again. Giving up there searched afresh from the same spot,
+    /// found the tape at once and met the same reflex, three times in half a second (165089
+    /// `token_ring`).
+    pub fn blocked(&mut self, now: Instant) {
         self.outstanding = 0;
+        if self.step == Step::Aligning {
+            let turns: Vec<MoveCommand> = std::mem::take(&mut self.align_turns);
+            if !turns.is_empty() {
+                self.pending = turns;
+                self.retry_at = Some(now);
+            }
+            return;
+        }
         self.give_up();
     }
 
@@ -326,7 +343,13 @@ impl Relocaliser {
             }
             After::Align => {
                 self.step = Step::Aligning;
-                self.align(view.pose, track)
+                let moves = self.align(view.pose, track);
+                self.align_turns = moves
+                    .iter()
+                    .filter(|m| matches!(m, MoveCommand::Rotate { .. }))
+                    .copied()
+                    .collect();
+                moves
             }
         };
         self.outstanding += moves.len();
@@ -764,6 +787,42 @@ mod tests {
         assert!(settled && (50..=52).contains(&mm), "{mm}");
         // Turning all the way: it ends at the longest follow, not settled.
         assert_eq!(follow(500), (80, false));
+    }
+
+    /// The reflex stops the nudge onto the tape (something close ahead on it): the robot
+    /// stands on the tape it found, so the routine sends the turn along the tape again and goes
+    /// on to the follow instead of searching afresh; in a sweep the same stop still ends it.
+    #[test]
+    fn a_nudge_onto_the_tape_stopped_by_the_reflex_costs_only_the_nudge() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, _) = swept(&lost, ROOM);
+        r.fixed(now);
+        let fixed = view(0.3, 0.184, 0.3);
+        let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
+            panic!("aligning");
+        };
+        let turns: Vec<MoveCommand> = align
+            .iter()
+            .filter(|m| matches!(m, MoveCommand::Rotate { .. }))
+            .copied()
+            .collect();
+        assert!(align.len() > turns.len() && !turns.is_empty(), "{align:?}");
+        r.blocked(now);
+        assert!(!r.gave_up());
+        assert_eq!(
+            r.poll(&fixed, &world.track, now),
+            Some(Action::Moves(turns.clone()))
+        );
+        finish(&mut r, turns.len());
+        assert_eq!(
+            r.poll(&fixed, &world.track, now),
+            Some(Action::Follow(SEARCH_MPS))
+        );
+        let (mut sweeping, _) = swept(&lost, ROOM);
+        sweeping.blocked(now);
+        assert!(sweeping.gave_up());
     }
 
     /// Sweep moves whose ends never come (a later stop dropped them) while the robot stands

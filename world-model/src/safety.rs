@@ -58,6 +58,9 @@ struct Growth {
 /// path (two pushers backing off side by side are not quite parallel).
 const ALONGSIDE_M: f64 = 0.002;
 
+/// A path whose heading changes by more than this turns the robot.
+const TURN_EPS_RAD: f64 = 1e-3;
+
 /// Largest step between checked poses along a path.
 const STEP_M: f64 = 0.005;
 const STEP_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
@@ -352,6 +355,13 @@ impl Safety {
             (0.0, ALONGSIDE_M)
         };
         let Some((p, _)) = path.iter().zip(drift).skip(1).find(|(p, d)| {
+            // A turn that brings the model's footprint more nearly parallel to the other's can
+            // lessen the overlap the model sees, while the robot, really facing up to 20° the
+            // other way, swings a corner into its neighbour (165062 `cooperative_push`).
+            if overlapping_now && self.lost(me) && wrap_abs(p.theta - path[0].theta) > TURN_EPS_RAD
+            {
+                return true;
+            }
             if overlapping_now {
                 let swing = 2.0 * half_diag * (wrap_abs(p.theta - path[0].theta) / 2.0).sin();
                 let depth = grown(**p, **d, my_depth_margin + swing).depth(&fq_plain);
@@ -595,6 +605,27 @@ mod tests {
             assert!(s.check(&intent, &w).is_err(), "lost: {what}");
         }
         assert!(s.check(&straight(2, -0.05), &w).is_ok());
+        // Modelled 14° askew, a turn square to its neighbour lessens the overlap the model
+        // sees; really facing the other way, it swings its corner into the neighbour.
+        let askew = w.robots[0].pose.theta - 14f64.to_radians();
+        let mut one = (*w.robots[0]).clone();
+        one.pose.theta = askew;
+        let skewed = WorldSnapshot {
+            robots: [one, (*w.robots[1]).clone()]
+                .into_iter()
+                .map(std::sync::Arc::new)
+                .collect(),
+            ..w.clone()
+        };
+        let square = Intent::Move {
+            robot: 1,
+            command: MoveCommand::Rotate {
+                angle_deg: 14.0,
+                speed_mps: 0.03,
+            },
+            tag: 0,
+        };
+        assert!(s.check(&square, &skewed).is_err());
     }
 
     #[test]

@@ -58,6 +58,7 @@ impl Supervisor {
             Instant::now(),
         );
         self.relocalising.insert(id, routine);
+        self.routine_from.insert(id, self.next_move);
         self.act(id, first, &world);
         let reach = LOST_REACH_M + self.safety.reach(&view);
         let near: Vec<u16> = world
@@ -164,7 +165,15 @@ impl Supervisor {
                 let settled = routine.settled() && self.model.faces_along_tape(id);
                 info!(robot = id, settled, "robot re-localised");
                 self.relocalising.remove(&id);
-                self.give_room_back(id, &world);
+                // A follow that ended unsettled may have matched the wrong tape: its robot can
+                // stand centimetres from where the model puts it, and a neighbour driving back
+                // beside it met it (165025 `token_ring`). The neighbours then stay where they
+                // made room, and their behaviours go on from there.
+                if settled {
+                    self.give_room_back(id, &world);
+                } else {
+                    self.making_room.retain(|_, r| r.lost != id);
+                }
                 // The routine's last word stops its follow along the tape: the robot waits for
                 // its behaviour, which hears it was found, rather than follow on unasked.
                 if let Some(action) = action {

@@ -111,6 +111,9 @@ pub struct Supervisor {
     relocalising: std::collections::HashMap<u16, Relocaliser>,
     /// Searches each robot's re-localisation has run that found nothing.
     searches: std::collections::HashMap<u16, u32>,
+    /// The number of the first move each routine under way may have sent: ends of moves sent
+    /// before it are not the routine's.
+    routine_from: std::collections::HashMap<u16, u32>,
     /// Robots moved aside for a lost robot's search, by id: for whom, from where, how far.
     making_room: std::collections::HashMap<u16, localisation::Room>,
     /// Robots whose link came back but whose first state report has not: the behaviour hears
@@ -209,6 +212,7 @@ impl Supervisor {
             relocalising: Default::default(),
             making_room: Default::default(),
             searches: Default::default(),
+            routine_from: Default::default(),
             reconnected: Default::default(),
         }
     }
