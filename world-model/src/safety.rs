@@ -3,7 +3,8 @@
 //! tunable margin; a move is swept from where the robot's queued moves will leave it, in steps of
 //! at most 5 mm and 5°, against every other robot where it stands and where its own queued moves
 //! will leave it. Each footprint also grows by its robot's position uncertainty, so a robot the
-//! world model is unsure of gets a wider berth: the mover's by 1σ ([`Safety::berth`]); every other
+//! world model is unsure of gets a wider berth: the mover's by 1σ ([`Safety::berth`]), a lost
+//! mover's path also by a turn of 3σ of its heading about its start; every other
 //! robot's by 1σ when the model tracks it, and when it is lost or just bumped by its whole
 //! uncertainty region ([`LOST_SIGMAS`] σ, and what a turn of as many σ of its heading sweeps), an
 //! exclusion zone the others keep clear of ([`Safety::reach`]).
@@ -156,13 +157,12 @@ impl Safety {
     }
 
     /// How much farther than its berth a mover may really be from each of `path`'s poses: none
-    /// for a tracked robot. A lost one may face up to δ = 1σ of its heading off (the mover is
-    /// taken within 1σ, as its position is),
-    /// which turns its whole path about its start: a straight drive's pose `s` metres along may
+    /// for a tracked robot. A lost one may face up to δ = `sigmas` σ of its heading off, which
+    /// turns its whole path about its start: a straight drive's pose `s` metres along may
     /// really lie `s·tan δ` to either side (within the wedge the widened footprints sweep), for
     /// δ up to [`SIDE_ONLY_RAD`]; a wider δ, or an arc, moves the pose up to `2·c·sin(δ/2)`
     /// in any direction, `c` its distance from the start. A turn on the spot stays where it is.
-    fn drift(&self, v: &RobotView, path: &[Pose]) -> Vec<Growth> {
+    fn drift(&self, v: &RobotView, path: &[Pose], sigmas: f64) -> Vec<Growth> {
         let none = Growth::default();
         let Some(start) = path.first().copied() else {
             return Vec::new();
@@ -170,7 +170,7 @@ impl Safety {
         if !self.lost(v) {
             return vec![none; path.len()];
         }
-        let delta = (UNCERTAINTY_SIGMAS * v.uncertainty.heading_rad).min(std::f64::consts::PI);
+        let delta = (sigmas * v.uncertainty.heading_rad).min(std::f64::consts::PI);
         let straight = path.iter().all(|p| p.theta == start.theta);
         path.iter()
             .map(|p| {
@@ -212,14 +212,18 @@ impl Safety {
         // clear of, and a lost robot searching for the tape beside another (a queue, pushers
         // side by side) could otherwise never move (record 0031).
         let my_margin = self.berth(me);
-        let drift = self.drift(me, &path);
+        let drift = self.drift(me, &path, LOST_SIGMAS);
+        let wall_drift = self.drift(me, &path, UNCERTAINTY_SIGMAS);
+        // Against other robots a lost mover's path is widened by 3σ of its heading: a bump's
+        // turn is what no sensor feels (a search leg approved on 1σ ran a robot facing 32° off
+        // into its neighbour, 165025 `token_ring`), while its shift is felt within millimetres.
         // Against the walls the mover is taken at 1σ of its position, widened to its sides by
         // its path's wedge of 1σ of heading, but not grown for a turn or ahead: that held
         // searches towards a wall that found their robots before (a follower knocked off a
         // bend, `traffic_control` robots by the arena's edge). Without the wedge, a search leg
         // driven 19° off the model's heading (1σ: 15°) met the wall.
         let wall_margin = self.margin_m + UNCERTAINTY_SIGMAS * me.uncertainty.position_m;
-        self.within_arena(me, (&path, &drift), wall_margin, world.arena)?;
+        self.within_arena(me, (&path, &wall_drift), wall_margin, world.arena)?;
         let widest_drift = drift.iter().map(|g| g.side + g.all).fold(0.0, f64::max);
         let broad = Broad::new(self, &path, my_margin + widest_drift);
         let widest_margin = world
@@ -823,7 +827,7 @@ mod tests {
             /// each other's grown footprints, sweeps footprints (at the check's own steps) that
             /// touch none of the other robot's possible poses: the mover anywhere within 1σ of
             /// where the check sweeps it (a lost mover's whole path also turned about its start
-            /// by up to 1σ of its heading), the other within its region (a tracked one within
+            /// by up to 3σ of its heading), the other within its region (a tracked one within
             /// 1σ, a lost one within 3σ and turned by up to 3σ of its heading).
             #[test]
             fn an_approved_move_never_reaches_where_the_other_robot_may_be(
@@ -859,10 +863,10 @@ mod tests {
                 }
                 let really_b = possible(&other, pb, (where_b.0, where_b.1), where_b.2);
                 let theirs = Footprint::new(really_b, s.length_m, s.width_m, 0.0);
-                // A lost mover may really face up to 1σ of its heading off: its whole path turns
+                // A lost mover may really face up to 3σ of its heading off: its whole path turns
                 // by that about its start.
                 let phi = if lost.0 {
-                    where_a.2 * (UNCERTAINTY_SIGMAS * sigmas.1).min(PI)
+                    where_a.2 * (LOST_SIGMAS * sigmas.1).min(PI)
                 } else {
                     0.0
                 };
