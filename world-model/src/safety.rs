@@ -352,27 +352,21 @@ impl Safety {
         };
         let start_depth = grown(path[0], Growth::default(), my_depth_margin).depth(&fq_plain);
         // A lost mover may not close in at all, nor turn there: where it really stands beside
-        // the other robot is unknown, and any corner a turn swings out may be the near one.
-        let (half_diag, tolerance) = if self.lost(me) {
-            ((self.length_m / 2.0).hypot(self.width_m / 2.0), 0.0)
-        } else {
-            (0.0, ALONGSIDE_M)
-        };
+        // the other robot is unknown, and any corner a turn swings out may be the near one. A
+        // turn bringing the model's footprint more nearly parallel to the other's lessens the
+        // overlap the model sees, while the robot, really facing up to 20° the other way, swings
+        // a corner into its neighbour (165062 `cooperative_push`): so no turn at all.
+        let lost_me = self.lost(me);
+        let tolerance = if lost_me { 0.0 } else { ALONGSIDE_M };
         let Some((p, _)) = path.iter().zip(drift).skip(1).find(|(p, d)| {
-            // A turn that brings the model's footprint more nearly parallel to the other's can
-            // lessen the overlap the model sees, while the robot, really facing up to 20° the
-            // other way, swings a corner into its neighbour (165062 `cooperative_push`).
-            if overlapping_now && self.lost(me) && wrap_abs(p.theta - path[0].theta) > TURN_EPS_RAD
-            {
+            if !overlapping_now {
+                return grown(**p, **d, my_margin).overlaps(&fq);
+            }
+            if lost_me && wrap_abs(p.theta - path[0].theta) > TURN_EPS_RAD {
                 return true;
             }
-            if overlapping_now {
-                let swing = 2.0 * half_diag * (wrap_abs(p.theta - path[0].theta) / 2.0).sin();
-                let depth = grown(**p, **d, my_depth_margin + swing).depth(&fq_plain);
-                depth > start_depth + tolerance || (depth > 0.0 && depth > start_depth)
-            } else {
-                grown(**p, **d, my_margin).overlaps(&fq)
-            }
+            let depth = grown(**p, **d, my_depth_margin).depth(&fq_plain);
+            depth > start_depth + tolerance || (depth > 0.0 && depth > start_depth)
         }) else {
             return Ok(());
         };
