@@ -61,6 +61,11 @@ pub struct Plan {
     pub settings: Vec<SettingWrite>,
     /// Clock steps (1 ms) per physics step of simulated robots: 1 is physics at 1 kHz.
     pub physics_every: u32,
+    /// The simulated links' model, replacing the world's `[link]` (`--link-profile`): the
+    /// name or file given, and the model.
+    pub link: Option<world::cli::LinkProfileArg>,
+    /// Threads kept busy beside the experiment, standing for other programs on the host.
+    pub host_load: usize,
 }
 
 /// One robot setting the coordinator writes to every robot before the experiment starts,
@@ -151,7 +156,24 @@ impl Plan {
             random_kicks: Vec::new(),
             settings: Vec::new(),
             physics_every: 1,
+            link: None,
+            host_load: 0,
         }
+    }
+
+    /// Simulated links follow `profile` (a name of [`world::LINK_PROFILES`]) instead of the
+    /// world's `[link]`.
+    ///
+    /// # Panics
+    /// If no profile has that name.
+    pub fn link_profile(mut self, profile: &str) -> Plan {
+        let model = world::RadioModel::profile(profile)
+            .unwrap_or_else(|| panic!("no link profile {profile:?}"));
+        self.link = Some(world::cli::LinkProfileArg {
+            name: profile.to_string(),
+            model,
+        });
+        self
     }
 
     /// Runs in this world preset or file instead of the behaviour's own.

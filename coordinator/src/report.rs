@@ -213,6 +213,19 @@ pub struct Report {
     pub peak_memory_bytes: Option<u64>,
     /// Kicks given to simulated robots, as they landed.
     pub kicks: Vec<KickRecord>,
+    /// How the run was paced and loaded: the clock, the links' profile, busy threads beside it.
+    pub conditions: Conditions,
+}
+
+/// The conditions a run met that its world does not say.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Conditions {
+    /// Paced to the wall clock (not lockstep).
+    pub realtime: bool,
+    /// The `--link-profile` given, if one was.
+    pub link_profile: Option<String>,
+    /// Threads kept busy beside the experiment.
+    pub host_load: usize,
 }
 
 /// The peak resident set size of this process so far, bytes: `VmHWM` in `/proc/self/status`, so
@@ -302,6 +315,7 @@ struct JsonReport<'a> {
     experiment_time_s: f64,
     wall_time_s: f64,
     peak_memory_mb: Option<f64>,
+    conditions: &'a Conditions,
 }
 
 impl Report {
@@ -484,6 +498,7 @@ impl Report {
             experiment_time_s: self.experiment_time.as_secs_f64(),
             wall_time_s: self.wall_time.as_secs_f64(),
             peak_memory_mb: self.peak_memory_bytes.map(|b| b as f64 / 1e6),
+            conditions: &self.conditions,
         };
         serde_json::to_string_pretty(&j).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
     }
@@ -642,10 +657,17 @@ impl Report {
         if !news.is_empty() {
             writeln!(f, "  links: {}", news.join(", "))?;
         }
+        let c = &self.conditions;
+        let mut pace = vec![if c.realtime { "wall clock" } else { "lockstep" }.to_string()];
+        pace.extend(c.link_profile.as_ref().map(|l| format!("link {l}")));
+        if c.host_load > 0 {
+            pace.push(format!("host load {}", c.host_load));
+        }
         write!(
             f,
-            "  experiment time {:.2} s, wall time {:.2} s",
+            "  experiment time {:.2} s ({}), wall time {:.2} s",
             self.experiment_time.as_secs_f64(),
+            pace.join(", "),
             self.wall_time.as_secs_f64()
         )?;
         if let Some(b) = self.peak_memory_bytes {
@@ -683,6 +705,7 @@ mod tests {
             experiment_time: Duration::from_secs(10),
             wall_time: Duration::from_secs(1),
             peak_memory_bytes: Some(50_000_000),
+            conditions: Conditions::default(),
             kicks: Vec::new(),
         }
     }
@@ -719,8 +742,9 @@ mod tests {
     fn the_report_ends_with_the_times_and_the_peak_memory() {
         let r = report((0, 0));
         assert!(
-            r.to_string()
-                .ends_with("  experiment time 10.00 s, wall time 1.00 s, peak memory 50 MB"),
+            r.to_string().ends_with(
+                "  experiment time 10.00 s (lockstep), wall time 1.00 s, peak memory 50 MB"
+            ),
             "{r}"
         );
         let json: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();

@@ -215,6 +215,38 @@ fn a_panicking_behaviour_is_restarted_after_every_robot_stopped() {
 }
 
 #[test]
+fn a_link_profile_gives_the_simulated_links_its_latency() {
+    let rtt_ms = |link: Option<world::cli::LinkProfileArg>| {
+        let report = run(
+            Plan {
+                link,
+                ..plan("square_walk", 1)
+            },
+            &Registry::builtin(),
+        );
+        assert!(report.success(), "{report}");
+        let rtt = report.robots[0].link.rtt_mean.expect("pings answered");
+        (rtt.as_secs_f64() * 1e3, report)
+    };
+    let (ideal, report) = rtt_ms(Some(world::cli::parse_link_profile("ideal").unwrap()));
+    assert!(ideal < 5.0, "ideal links: {ideal:.1} ms round trips");
+    assert_eq!(report.conditions.link_profile.as_deref(), Some("ideal"));
+    // `poor` without its losses: 40–120 ms each way, 160 ms there and back on average.
+    let poor = world::RadioModel {
+        loss: 0.0,
+        ..world::RadioModel::profile("poor").unwrap()
+    };
+    let (slow, _) = rtt_ms(Some(world::cli::LinkProfileArg {
+        name: "poor without loss".into(),
+        model: poor,
+    }));
+    assert!(
+        (120.0..220.0).contains(&slow),
+        "poor links: {slow:.1} ms round trips"
+    );
+}
+
+#[test]
 fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
     let bin = env!("CARGO_BIN_EXE_coordinator");
     let ok = Command::new(bin)
@@ -239,6 +271,16 @@ fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
         .unwrap();
     assert_eq!(unknown.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&unknown.stderr).contains("square_walk"));
+    let profile = Command::new(bin)
+        .args(["--behaviour", "square_walk", "--link-profile", "wifi"])
+        .output()
+        .unwrap();
+    assert_eq!(profile.status.code(), Some(2));
+    let why = String::from_utf8_lossy(&profile.stderr);
+    assert!(
+        why.contains("--link-profile") && why.contains("ideal, l2cap, bluetooth, poor"),
+        "{why}"
+    );
 }
 
 #[test]

@@ -3,6 +3,10 @@
 //! bandwidth its robots share (defaults modelled on Bluetooth L2CAP: ~10 ms, no loss after
 //! retransmission, ~700 kbit/s for up to 7 robots).
 //!
+//! Loss is drawn per packet: on its own, or in bursts from a Gilbert–Elliott channel (a good state
+//! that loses nothing and a bad one that loses everything, one chain per link shared by both
+//! directions, as one radio's fading hits both) when the model's mean burst is above one packet.
+//!
 //! Packets in one direction stay in order, as on L2CAP. A cut link drops everything in both
 //! directions until it is restored.
 //!
@@ -26,8 +30,11 @@ pub struct LinkModel {
     pub latency_s: f64,
     /// Uniform jitter added to the latency, seconds (0..jitter).
     pub jitter_s: f64,
-    /// Probability that a packet is lost.
+    /// Probability that a packet is lost, over the long run.
     pub loss: f64,
+    /// Mean number of packets in a run of losses: 1 draws each packet's loss on its own; above 1
+    /// a Gilbert–Elliott chain gives bursts of this mean length with the same long-run `loss`.
+    pub loss_burst: f64,
     /// Air bandwidth of one piconet, bits per second.
     pub bandwidth_bps: f64,
     /// Robots sharing one piconet's air time.
@@ -40,6 +47,7 @@ impl Default for LinkModel {
             latency_s: 0.010,
             jitter_s: 0.002,
             loss: 0.0,
+            loss_burst: 1.0,
             bandwidth_bps: 700_000.0,
             robots_per_piconet: 7,
         }
@@ -191,6 +199,8 @@ pub struct SimLink {
     up: bool,
     stats: LinkStats,
     rng: ChaCha8Rng,
+    /// The Gilbert–Elliott chain is in its bad state: the next packet is lost.
+    fading: bool,
 }
 
 impl SimLink {
@@ -207,6 +217,7 @@ impl SimLink {
             up: true,
             stats: LinkStats::default(),
             rng,
+            fading: false,
         }
     }
 
@@ -313,6 +324,21 @@ impl SimLink {
         self.to_host.first_tag()
     }
 
+    /// Whether the next packet is lost: a draw on its own, or a step of the Gilbert–Elliott chain
+    /// whose bad state lasts `loss_burst` packets on average and holds a `loss` share of them.
+    fn lose(&mut self, model: &LinkModel) -> bool {
+        if model.loss_burst <= 1.0 || model.loss >= 1.0 {
+            return self.rng.gen::<f64>() < model.loss;
+        }
+        let lost = self.fading;
+        // Stationary share of the bad state p / (p + r) = loss, with r = 1 / burst.
+        let recover = 1.0 / model.loss_burst;
+        let fade = model.loss * recover / (1.0 - model.loss);
+        let u = self.rng.gen::<f64>();
+        self.fading = if self.fading { u >= recover } else { u < fade };
+        lost
+    }
+
     fn schedule(
         &mut self,
         now_ns: u64,
@@ -340,7 +366,7 @@ impl SimLink {
             }
             return None;
         }
-        if model.loss > 0.0 && self.rng.gen::<f64>() < model.loss {
+        if model.loss > 0.0 && self.lose(model) {
             self.stats.lost += 1;
             return None;
         }
@@ -377,6 +403,48 @@ mod tests {
 
     fn link() -> SimLink {
         SimLink::new(ChaCha8Rng::seed_from_u64(7))
+    }
+
+    #[test]
+    fn bursty_loss_keeps_its_long_run_rate_and_comes_in_runs_of_its_mean_length() {
+        let model = LinkModel {
+            loss: 0.05,
+            loss_burst: 4.0,
+            ..LinkModel::default()
+        };
+        let mut l = link();
+        let n = 200_000;
+        let (mut lost, mut runs, mut previous) = (0u32, 0u32, false);
+        for _ in 0..n {
+            let now = l.lose(&model);
+            lost += u32::from(now);
+            runs += u32::from(now && !previous);
+            previous = now;
+        }
+        let rate = f64::from(lost) / f64::from(n);
+        let mean_run = f64::from(lost) / f64::from(runs);
+        assert!((rate - 0.05).abs() < 0.005, "long-run loss {rate}");
+        assert!(
+            (mean_run - 4.0).abs() < 0.3,
+            "mean burst {mean_run} packets"
+        );
+        // Drawn on its own, a loss of 5 % rarely comes twice in a row.
+        let single = LinkModel {
+            loss: 0.05,
+            ..LinkModel::default()
+        };
+        let (mut lost, mut runs, mut previous) = (0u32, 0u32, false);
+        for _ in 0..n {
+            let now = l.lose(&single);
+            lost += u32::from(now);
+            runs += u32::from(now && !previous);
+            previous = now;
+        }
+        let mean_run = f64::from(lost) / f64::from(runs);
+        assert!(
+            mean_run < 1.1,
+            "independent losses ran {mean_run} packets on average"
+        );
     }
 
     #[test]

@@ -28,6 +28,34 @@ pub fn parse_seconds(text: &str) -> Result<f64, String> {
     Ok(secs)
 }
 
+/// A link profile from the command line: a profile's name, or the path of a TOML file holding a
+/// `[link]` table as a world file has it (which may itself start from a `profile`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinkProfileArg {
+    /// What was given: the name, or the path.
+    pub name: String,
+    /// The model it stands for.
+    pub model: crate::RadioModel,
+}
+
+/// Parses `--link-profile NAME|FILE`; for clap's `value_parser`.
+pub fn parse_link_profile(text: &str) -> Result<LinkProfileArg, String> {
+    let name = text.trim().to_owned();
+    if let Some(model) = crate::RadioModel::profile(&name) {
+        return Ok(LinkProfileArg { name, model });
+    }
+    let path = std::path::Path::new(&name);
+    if !path.is_file() {
+        return Err(format!(
+            "{name:?} is neither a link profile ({}) nor a file",
+            crate::RadioModel::profile_names()
+        ));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: {e}"))?;
+    let model = crate::file::parse_link(&text, &name).map_err(|e| e.to_string())?;
+    Ok(LinkProfileArg { name, model })
+}
+
 /// Physics rates a run may ask for, Hz: each divides the 1 kHz clock, and none is so coarse that
 /// a robot at full speed moves more than a few millimetres per physics step.
 pub const PHYSICS_HZ: [u32; 4] = [1000, 500, 250, 200];
@@ -232,6 +260,32 @@ pub fn parse_duration(text: &str) -> Result<std::time::Duration, String> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_link_profile_is_a_name_or_a_file_and_a_bad_one_is_named() {
+        let b = super::parse_link_profile("bluetooth").unwrap();
+        assert_eq!(b.model.loss, 0.01);
+        assert_eq!(b.model.loss_burst, 4.0);
+        let e = super::parse_link_profile("bluetoth").unwrap_err();
+        assert!(e.contains("ideal, l2cap, bluetooth, poor"), "{e}");
+        let dir = std::env::temp_dir().join(format!("link-profile-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("good.toml");
+        std::fs::write(&good, "[link]\nprofile = \"poor\"\nloss = 0.02\n").unwrap();
+        let m = super::parse_link_profile(good.to_str().unwrap())
+            .unwrap()
+            .model;
+        assert_eq!((m.latency_ms, m.loss, m.loss_burst), (40.0, 0.02, 4.0));
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, "[link]\nlatency_ms = 5\nloss_burst = 0.5\n").unwrap();
+        let e = super::parse_link_profile(bad.to_str().unwrap()).unwrap_err();
+        assert!(e.contains("bad.toml:3:") && e.contains("loss_burst"), "{e}");
+        let unknown = dir.join("unknown.toml");
+        std::fs::write(&unknown, "[link]\nprofile = \"wifi\"\n").unwrap();
+        let e = super::parse_link_profile(unknown.to_str().unwrap()).unwrap_err();
+        assert!(e.contains("unknown.toml:2:") && e.contains("wifi"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     use super::*;
 
     #[test]

@@ -38,9 +38,11 @@
 //! y = 0.3
 //! heading_deg = 0                # default 0
 //! [link]                         # every key optional; defaults shown
+//! profile = "l2cap"              # ideal, l2cap, bluetooth or poor; the keys below override it
 //! latency_ms = 10
 //! jitter_ms = 2
 //! loss = 0
+//! loss_burst = 1                 # mean packets per run of losses (Gilbert–Elliott above 1)
 //! bandwidth_kbps = 700
 //! robots_per_piconet = 7
 //! [light]
@@ -229,6 +231,9 @@ pub struct RobotFile {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LinkFile {
+    /// A named profile the other keys start from; default `l2cap`.
+    #[serde(default)]
+    pub profile: Option<Spanned<String>>,
     /// One-way latency in ms; default 10.
     #[serde(default)]
     pub latency_ms: Option<Spanned<f64>>,
@@ -238,12 +243,85 @@ pub struct LinkFile {
     /// Packet loss probability; default 0.
     #[serde(default)]
     pub loss: Option<Spanned<f64>>,
+    /// Mean length of a run of lost packets; default 1 (each loss on its own).
+    #[serde(default)]
+    pub loss_burst: Option<Spanned<f64>>,
     /// Bandwidth per piconet in kbit/s; default 700.
     #[serde(default)]
     pub bandwidth_kbps: Option<Spanned<f64>>,
     /// Robots per radio; default 7.
     #[serde(default)]
     pub robots_per_piconet: Option<Spanned<u32>>,
+}
+
+impl LinkFile {
+    /// The model: the named profile (or the default), with every key given replacing its value.
+    pub fn to_model(&self) -> Result<RadioModel, Problem> {
+        let d = match &self.profile {
+            None => RadioModel::default(),
+            Some(name) => {
+                RadioModel::profile(name.get_ref()).ok_or_else(|| Problem::UnknownLinkProfile {
+                    name: name.get_ref().clone(),
+                    known: RadioModel::profile_names(),
+                })?
+            }
+        };
+        Ok(RadioModel {
+            latency_ms: value(&self.latency_ms, d.latency_ms),
+            jitter_ms: value(&self.jitter_ms, d.jitter_ms),
+            loss: value(&self.loss, d.loss),
+            loss_burst: value(&self.loss_burst, d.loss_burst),
+            bandwidth_kbps: value(&self.bandwidth_kbps, d.bandwidth_kbps),
+            robots_per_piconet: value(&self.robots_per_piconet, d.robots_per_piconet),
+        })
+    }
+}
+
+/// A link profile file: a `[link]` table as a world file has it, and nothing else.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct LinkProfileFile {
+    link: LinkFile,
+}
+
+/// Parses and checks a link profile file's text (a `[link]` table); `origin` heads every message.
+pub fn parse_link(text: &str, origin: &str) -> Result<RadioModel, WorldError> {
+    let file: LinkProfileFile = toml::from_str(text).map_err(|e| WorldError::Syntax {
+        origin: origin.to_owned(),
+        line: e.span().map_or(1, |s| line_of(text, s.start)),
+        message: syntax_message(&e, text),
+    })?;
+    let invalid = |problem: Problem| {
+        let span = match problem.place() {
+            Place::Link(key) => file.link.span_of(key),
+            _ => None,
+        };
+        WorldError::Invalid {
+            origin: origin.to_owned(),
+            line: span.map_or(1, |s| line_of(text, s.start)),
+            problem,
+        }
+    };
+    let model = file.link.to_model().map_err(invalid)?;
+    model.validate().map_err(invalid)?;
+    Ok(model)
+}
+
+impl LinkFile {
+    /// Where `key`'s value is written, when it is.
+    fn span_of(&self, key: &str) -> Option<Range<usize>> {
+        let l = self;
+        Some(match key {
+            "profile" => l.profile.as_ref()?.span(),
+            "latency_ms" => l.latency_ms.as_ref()?.span(),
+            "jitter_ms" => l.jitter_ms.as_ref()?.span(),
+            "loss" => l.loss.as_ref()?.span(),
+            "loss_burst" => l.loss_burst.as_ref()?.span(),
+            "bandwidth_kbps" => l.bandwidth_kbps.as_ref()?.span(),
+            "robots_per_piconet" => l.robots_per_piconet.as_ref()?.span(),
+            _ => return None,
+        })
+    }
 }
 
 /// `[light]`: ambient light; every key is optional.
@@ -314,17 +392,7 @@ impl WorldFile {
                     _ => r.span(),
                 }
             }
-            Place::Link(key) => {
-                let l = &self.link;
-                match key {
-                    "latency_ms" => l.latency_ms.as_ref()?.span(),
-                    "jitter_ms" => l.jitter_ms.as_ref()?.span(),
-                    "loss" => l.loss.as_ref()?.span(),
-                    "bandwidth_kbps" => l.bandwidth_kbps.as_ref()?.span(),
-                    "robots_per_piconet" => l.robots_per_piconet.as_ref()?.span(),
-                    _ => return None,
-                }
-            }
+            Place::Link(key) => self.link.span_of(key)?,
             Place::Light(key) => match key {
                 "ambient" => self.light.ambient.as_ref()?.span(),
                 "noise" => self.light.noise.as_ref()?.span(),
@@ -392,15 +460,7 @@ impl WorldFile {
                 }
             })
             .collect();
-        let d = RadioModel::default();
-        let l = &self.link;
-        let link = RadioModel {
-            latency_ms: value(&l.latency_ms, d.latency_ms),
-            jitter_ms: value(&l.jitter_ms, d.jitter_ms),
-            loss: value(&l.loss, d.loss),
-            bandwidth_kbps: value(&l.bandwidth_kbps, d.bandwidth_kbps),
-            robots_per_piconet: value(&l.robots_per_piconet, d.robots_per_piconet),
-        };
+        let link = self.link.to_model()?;
         let d = Light::default();
         let light = Light {
             ambient: value(&self.light.ambient, d.ambient),
@@ -672,6 +732,29 @@ y = 0.5
                 .contains("robot 3 starts on top of obstacle 0"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn a_link_profile_is_the_base_its_keys_override() {
+        let text = format!("{GOOD}\n[link]\nprofile = \"bluetooth\"\nlatency_ms = 20\n");
+        let w = parse(&text, "t.toml").unwrap();
+        let b = RadioModel::profile("bluetooth").unwrap();
+        assert_eq!(
+            w.link,
+            RadioModel {
+                latency_ms: 20.0,
+                ..b
+            }
+        );
+        let text = format!("{GOOD}\n[link]\nprofile = \"fast\"\n");
+        let e = parse(&text, "t.toml").unwrap_err();
+        let line = GOOD.lines().count() + 3;
+        assert_eq!(e.line(), Some(line), "{e}");
+        assert!(
+            e.to_string().contains("\"fast\" is not one of ideal"),
+            "{e}"
+        );
+        assert_eq!(RadioModel::profile("l2cap"), Some(RadioModel::default()));
     }
 
     #[test]

@@ -113,8 +113,12 @@ pub struct RadioModel {
     pub latency_ms: f64,
     /// Jitter added to each packet's latency, milliseconds: drawn uniformly in `0..jitter_ms`.
     pub jitter_ms: f64,
-    /// Probability (0..=1) that a packet is lost.
+    /// Probability (0..=1) that a packet is lost, over the long run.
     pub loss: f64,
+    /// Mean length of a run of lost packets: 1 draws each loss on its own; above 1 losses come
+    /// in bursts (a Gilbert–Elliott channel whose bad state loses every packet) with the same
+    /// long-run `loss`.
+    pub loss_burst: f64,
     /// Usable bandwidth of one piconet in kilobits per second.
     pub bandwidth_kbps: f64,
     /// Robots one radio (piconet master) serves; more robots need more radios.
@@ -127,9 +131,118 @@ impl Default for RadioModel {
             latency_ms: 10.0,
             jitter_ms: 2.0,
             loss: 0.0,
+            loss_burst: 1.0,
             bandwidth_kbps: 700.0,
             robots_per_piconet: 7,
         }
+    }
+}
+
+/// The named link profiles: name, what it stands for, and the model.
+pub const LINK_PROFILES: [(&str, &str, RadioModel); 4] = [
+    (
+        "ideal",
+        "no latency, no jitter, no loss, no air time to share",
+        RadioModel {
+            latency_ms: 0.0,
+            jitter_ms: 0.0,
+            loss: 0.0,
+            loss_burst: 1.0,
+            bandwidth_kbps: 1.0e6,
+            robots_per_piconet: 7,
+        },
+    ),
+    (
+        "l2cap",
+        "the default: 10-12 ms, no loss after retransmission, 700 kbit/s per piconet of 7",
+        RadioModel {
+            latency_ms: 10.0,
+            jitter_ms: 2.0,
+            loss: 0.0,
+            loss_burst: 1.0,
+            bandwidth_kbps: 700.0,
+            robots_per_piconet: 7,
+        },
+    ),
+    (
+        "bluetooth",
+        "30 ms ± 15 ms, 700 kbit/s per piconet of 7, 1 % loss in bursts of 4 packets on average",
+        RadioModel {
+            latency_ms: 15.0,
+            jitter_ms: 30.0,
+            loss: 0.01,
+            loss_burst: 4.0,
+            bandwidth_kbps: 700.0,
+            robots_per_piconet: 7,
+        },
+    ),
+    (
+        "poor",
+        "80 ms ± 40 ms, 700 kbit/s per piconet of 7, 5 % loss in bursts of 4 packets on average",
+        RadioModel {
+            latency_ms: 40.0,
+            jitter_ms: 80.0,
+            loss: 0.05,
+            loss_burst: 4.0,
+            bandwidth_kbps: 700.0,
+            robots_per_piconet: 7,
+        },
+    ),
+];
+
+impl RadioModel {
+    /// The named profile, if there is one by that name.
+    pub fn profile(name: &str) -> Option<RadioModel> {
+        LINK_PROFILES
+            .iter()
+            .find(|(n, _, _)| *n == name)
+            .map(|&(_, _, m)| m)
+    }
+
+    /// The profiles' names, comma-separated, for messages.
+    pub fn profile_names() -> String {
+        LINK_PROFILES.map(|(n, _, _)| n).join(", ")
+    }
+
+    /// Checks every value's range; the first problem found, in key order.
+    pub fn validate(&self) -> Result<(), Problem> {
+        let l = self;
+        require(
+            non_negative(l.latency_ms),
+            Place::Link("latency_ms"),
+            l.latency_ms,
+            "0 ms or more",
+        )?;
+        require(
+            non_negative(l.jitter_ms),
+            Place::Link("jitter_ms"),
+            l.jitter_ms,
+            "0 ms or more",
+        )?;
+        require(
+            (0.0..=1.0).contains(&l.loss),
+            Place::Link("loss"),
+            l.loss,
+            "a probability in 0..=1",
+        )?;
+        require(
+            l.loss_burst.is_finite() && l.loss_burst >= 1.0,
+            Place::Link("loss_burst"),
+            l.loss_burst,
+            "a mean burst length of 1 packet or more",
+        )?;
+        require(
+            positive(l.bandwidth_kbps),
+            Place::Link("bandwidth_kbps"),
+            l.bandwidth_kbps,
+            "a positive rate in kbit/s",
+        )?;
+        require(
+            l.robots_per_piconet >= 1,
+            Place::Link("robots_per_piconet"),
+            f64::from(l.robots_per_piconet),
+            "at least 1",
+        )
     }
 }
 
@@ -283,6 +396,14 @@ pub enum Problem {
         /// The other robot's id.
         other_id: u16,
     },
+    /// `[link] profile` names no profile.
+    #[error("link profile {name:?} is not one of {known}")]
+    UnknownLinkProfile {
+        /// The name given.
+        name: String,
+        /// The known names.
+        known: String,
+    },
     /// A robot starts inside an obstacle.
     #[error("robot {id} starts on top of obstacle {obstacle}")]
     RobotOnObstacle {
@@ -318,6 +439,7 @@ impl Problem {
             Problem::DuplicateRobot { robot, .. } => Place::Robot(*robot, "id"),
             Problem::RobotsOverlap { robot, .. } => Place::Robot(*robot, "x"),
             Problem::RobotOnObstacle { robot, .. } => Place::Robot(*robot, "x"),
+            Problem::UnknownLinkProfile { .. } => Place::Link("profile"),
         }
     }
 }
@@ -488,37 +610,7 @@ impl World {
 
     /// The link's and the light's ranges.
     fn validate_link_and_light(&self) -> Result<(), Problem> {
-        let l = self.link;
-        require(
-            non_negative(l.latency_ms),
-            Place::Link("latency_ms"),
-            l.latency_ms,
-            "0 ms or more",
-        )?;
-        require(
-            non_negative(l.jitter_ms),
-            Place::Link("jitter_ms"),
-            l.jitter_ms,
-            "0 ms or more",
-        )?;
-        require(
-            (0.0..=1.0).contains(&l.loss),
-            Place::Link("loss"),
-            l.loss,
-            "a probability in 0..=1",
-        )?;
-        require(
-            positive(l.bandwidth_kbps),
-            Place::Link("bandwidth_kbps"),
-            l.bandwidth_kbps,
-            "a positive rate in kbit/s",
-        )?;
-        require(
-            l.robots_per_piconet >= 1,
-            Place::Link("robots_per_piconet"),
-            f64::from(l.robots_per_piconet),
-            "at least 1",
-        )?;
+        self.link.validate()?;
         let g = self.light;
         require(
             (0.0..=1.0).contains(&g.ambient),

@@ -58,6 +58,13 @@ struct Args {
     /// Pace the simulation to the wall clock instead of running it as fast as possible.
     #[arg(long)]
     realtime: bool,
+    /// The simulated links' latency, loss and bandwidth: a profile (ideal, l2cap, bluetooth, poor)
+    /// or a TOML file with a `[link]` table, replacing the world's `[link]`.
+    #[arg(long = "link-profile", value_name = "NAME|FILE", value_parser = world::cli::parse_link_profile)]
+    link_profile: Option<world::cli::LinkProfileArg>,
+    /// Keep N threads busy beside the experiment, standing for other programs on a loaded host.
+    #[arg(long = "host-load", value_name = "N", default_value_t = 0)]
+    host_load: usize,
     /// Physics rate of simulated robots in Hz: 1000, 500, 250 or 200. Firmware deadlines, link
     /// packets and encoder edges keep the 1 kHz clock; below 1000 the bodies move in coarser steps
     /// and the line sensor sees the floor interpolated between them (faster, a little less exact).
@@ -305,6 +312,8 @@ fn plan(args: &Args) -> Result<Plan> {
             .collect(),
         settings: args.settings.clone(),
         physics_every: args.physics_every,
+        link: args.link_profile.clone(),
+        host_load: args.host_load,
         ..Plan::sim(behaviour)
     })
 }

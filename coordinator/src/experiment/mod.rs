@@ -47,6 +47,7 @@ pub async fn run(plan: Plan, registry: &Registry) -> Result<Report> {
 /// Runs one experiment with a recorder, a control panel or trails, and reports it.
 pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments) -> Result<Run> {
     let setup = resolve(&plan, registry)?;
+    let _load = HostLoad::start(plan.host_load);
     let world = &setup.world;
     let wall = std::time::Instant::now();
     let mut hooks = Hooks::new(&plan, &setup.world_name, world.robots.len(), instruments)?;
@@ -110,6 +111,45 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     hooks.finish(report, &observer).await
 }
 
+/// Threads that keep a core busy each, standing for the other programs on a loaded host, until
+/// dropped.
+pub struct HostLoad {
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl HostLoad {
+    /// Starts `n` busy threads.
+    pub fn start(n: usize) -> HostLoad {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = Arc::new(AtomicBool::new(false));
+        let threads = (0..n)
+            .map(|_| {
+                let stop = Arc::clone(&stop);
+                std::thread::spawn(move || {
+                    let mut x = 1u64;
+                    while !stop.load(Ordering::Relaxed) {
+                        // A few microseconds of arithmetic between looks at the flag.
+                        for _ in 0..1000 {
+                            x = std::hint::black_box(x.wrapping_mul(6364136223846793005) + 1);
+                        }
+                    }
+                })
+            })
+            .collect();
+        HostLoad { stop, threads }
+    }
+}
+
+impl Drop for HostLoad {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
 /// A plan checked against its behaviour and world, before anything starts.
 struct Setup {
     /// The name the world was loaded by.
@@ -137,6 +177,15 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
         .clone()
         .unwrap_or_else(|| entry.world.to_string());
     let mut world = load_world(&world_name)?;
+    if let Some(link) = &plan.link {
+        if plan.transport != Transport::Sim {
+            bail!(
+                "--link-profile {}: only simulated links follow a profile (transport sim)",
+                link.name
+            );
+        }
+        world.link = link.model;
+    }
     if world.robots.is_empty() {
         bail!("world {world_name:?} places no robots: give it at least one [[robots]] entry");
     }

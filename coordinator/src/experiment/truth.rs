@@ -120,6 +120,11 @@ pub(super) fn build_report(
         experiment_time,
         wall_time,
         peak_memory_bytes: crate::report::peak_memory_bytes(),
+        conditions: crate::report::Conditions {
+            realtime: plan.realtime,
+            link_profile: plan.link.as_ref().map(|l| l.name.clone()),
+            host_load: plan.host_load,
+        },
         kicks,
     }
 }

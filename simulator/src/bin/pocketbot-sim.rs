@@ -26,6 +26,10 @@ struct Args {
     /// Port of the first robot; the next robots take the following ports. 0 picks free ports.
     #[arg(long, default_value_t = 7001)]
     port_base: u16,
+    /// The links' latency, loss and bandwidth: a profile (ideal, l2cap, bluetooth, poor) or a
+    /// TOML file with a `[link]` table, replacing the world's `[link]`.
+    #[arg(long = "link-profile", value_name = "NAME|FILE", value_parser = simulator::cli::parse_link_profile)]
+    link_profile: Option<simulator::cli::LinkProfileArg>,
     /// Seed of noise and link jitter (defaults to the world's).
     #[arg(long)]
     seed: Option<u64>,
@@ -99,7 +103,10 @@ async fn main() -> Result<()> {
         }
         return Ok(());
     }
-    let world = load_world(&args.world)?;
+    let mut world = load_world(&args.world)?;
+    if let Some(link) = &args.link_profile {
+        world.link = link.model;
+    }
     let mut sim = Simulation::new(
         world,
         SimConfig {

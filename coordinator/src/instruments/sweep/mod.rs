@@ -66,9 +66,20 @@ pub struct SweepArgs {
     /// Each run's time limit in simulated seconds (default: the coordinator's).
     #[arg(long, value_parser = world::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
-    /// Runs at a time (default: the number of cores).
+    /// Runs at a time (default: the number of cores; with --realtime, 8 per core, since a run
+    /// paced to the wall clock mostly waits).
     #[arg(long)]
     pub jobs: Option<usize>,
+    /// Pace every run to the wall clock (`coordinator --realtime`) instead of lockstep.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Every run's simulated links follow this profile or file (`coordinator --link-profile`).
+    #[arg(long = "link-profile", value_name = "NAME|FILE", value_parser = world::cli::parse_link_profile)]
+    pub link_profile: Option<world::cli::LinkProfileArg>,
+    /// Keep N threads busy beside the sweep's runs for its whole length, standing for other
+    /// programs on a loaded host.
+    #[arg(long = "host-load", value_name = "N", default_value_t = 0)]
+    pub host_load: usize,
     /// Run only every N-th run, starting at the K-th (`K/N`), to split a sweep between machines.
     #[arg(long, value_name = "K/N")]
     pub shard: Option<String>,
@@ -127,10 +138,12 @@ pub fn main(cmd: &SweepCommand) -> Result<bool> {
         }
     }
     let shard = a.shard.as_deref().map(parse_shard).transpose()?;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let jobs = match a.jobs {
         Some(0) => bail!("--jobs must be at least 1"),
         Some(n) => n,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        None if a.realtime => 8 * cores,
+        None => cores,
     };
     let options = Options {
         out: a.out.clone().context("--out is required")?,
@@ -139,6 +152,7 @@ pub fn main(cmd: &SweepCommand) -> Result<bool> {
         record_failures: a.record_failures,
         exe: std::env::current_exe().context("finding this program to run each experiment")?,
     };
+    let _load = crate::experiment::HostLoad::start(a.host_load);
     sweep(&definition, &options)?;
     Ok(true)
 }
@@ -165,6 +179,15 @@ pub struct Definition {
     pub seeds: Vec<u64>,
     /// Each run's time limit, simulated seconds (none: the coordinator's default).
     pub duration_s: Option<f64>,
+    /// Every run paced to the wall clock. Sweeps written before it read lockstep.
+    #[serde(default)]
+    pub realtime: bool,
+    /// Every run's link profile, as given (none: the world's `[link]`).
+    #[serde(default)]
+    pub link_profile: Option<String>,
+    /// Busy threads beside the sweep.
+    #[serde(default)]
+    pub host_load: usize,
 }
 
 /// One run of a sweep: its coordinates.
@@ -308,7 +331,26 @@ impl Definition {
             params,
             seeds,
             duration_s: a.duration,
+            realtime: a.realtime,
+            link_profile: a.link_profile.as_ref().map(|l| l.name.clone()),
+            host_load: a.host_load,
         })
+    }
+
+    /// How every run is paced and loaded, in words: `lockstep`, or `wall clock`, with the link
+    /// profile and host load when given.
+    pub fn conditions(&self) -> String {
+        let mut c = vec![if self.realtime {
+            "wall clock"
+        } else {
+            "lockstep"
+        }
+        .to_string()];
+        c.extend(self.link_profile.as_ref().map(|l| format!("link {l}")));
+        if self.host_load > 0 {
+            c.push(format!("host load {}", self.host_load));
+        }
+        c.join(", ")
     }
 
     /// The coordinates swept (with more than one value), in order; the seed is not one.
@@ -551,6 +593,9 @@ mod tests {
             params: vec![("laps".into(), vec!["1".into(), "2".into()])],
             seeds: vec![3, 4, 5],
             duration_s: None,
+            realtime: false,
+            link_profile: None,
+            host_load: 0,
         };
         let runs = d.runs();
         assert_eq!(runs.len(), 12);
@@ -578,6 +623,9 @@ mod tests {
             params: vec![("side".into(), vec!["0.1".into()])],
             seeds: vec![1, 2],
             duration_s: None,
+            realtime: false,
+            link_profile: None,
+            host_load: 0,
         };
         let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
         assert_eq!(
@@ -619,6 +667,9 @@ mod tests {
             jobs: None,
             shard: None,
             record_failures: false,
+            realtime: false,
+            link_profile: None,
+            host_load: 0,
             out: None,
         };
         let d = Definition::from_args(&args(&["none", "2:5:0.05,0", "1:3:0,0.02+3:8:0.01,0,10"]))

@@ -79,6 +79,7 @@ pub fn sweep(definition: &Definition, options: &Options) -> Result<()> {
         options.jobs.min(todo.len()).max(1)
     );
     let progress = Progress::new(total, skipped, todo.len());
+    let began = Instant::now();
     let (tx, rx) = mpsc::channel::<(RunResult, f64)>();
     let next = AtomicUsize::new(0);
     let written: Result<()> = std::thread::scope(|scope| {
@@ -108,6 +109,12 @@ pub fn sweep(definition: &Definition, options: &Options) -> Result<()> {
     });
     progress.done();
     written?;
+    eprintln!(
+        "sweep: {} runs ({}) took {:.0} s of wall time",
+        todo.len(),
+        definition.conditions(),
+        began.elapsed().as_secs_f64()
+    );
     let all: Vec<RunResult> = store::read_lines(&out.join(RESULTS))?;
     report(out, definition, &all)
 }
@@ -243,6 +250,12 @@ fn command(
     }
     if let Some(d) = definition.duration_s {
         cmd.arg("--duration").arg(d.to_string());
+    }
+    if definition.realtime {
+        cmd.arg("--realtime");
+    }
+    if let Some(l) = &definition.link_profile {
+        cmd.arg("--link-profile").arg(l);
     }
     cmd.arg("--json-report").arg(report);
     if let Some(r) = recording {

@@ -227,6 +227,8 @@ pub struct Summary {
     pub kicked_failures: Vec<(String, Vec<String>, String)>,
     /// Runs in the sweep definition.
     pub planned: usize,
+    /// How every run was paced and loaded ([`Definition::conditions`]).
+    pub conditions: String,
 }
 
 /// Summarises results (in any order, one per run id).
@@ -312,6 +314,7 @@ pub fn summarise(definition: &Definition, results: &[RunResult]) -> Summary {
         combinations,
         failures,
         planned: definition.runs().len(),
+        conditions: definition.conditions(),
     }
 }
 
@@ -437,6 +440,7 @@ impl Summary {
         let successes: usize = self.combinations.iter().map(|c| c.successes).sum();
         let errors: usize = self.combinations.iter().map(|c| c.errors).sum();
         let _ = writeln!(s, "# Sweep of {}\n", self.behaviour);
+        let _ = writeln!(s, "Every run: {}.\n", self.conditions);
         let _ = writeln!(
             s,
             "{runs} of {} runs have results: {successes} succeeded, {} failed, {errors} came to no verdict.\n",
