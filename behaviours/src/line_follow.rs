@@ -292,8 +292,9 @@ impl Behaviour for LineFollow {
             // A robot whose link is lost has stopped (its watchdog) and one back has not
             // resumed: its speed is sent again, held by the supervisor until the link is back.
             Event::LinkLost | Event::Connected => f.sent = 0.0,
-            // Its reflex stopped it: once the way is clear its speed is sent again.
-            Event::Reflexed { .. } => f.sent = 0.0,
+            // Its reflex stopped it, or its watchdog did (a burst of losses silenced the link
+            // longer than its timeout): its speed is sent again, through the safety check.
+            Event::Reflexed { .. } | Event::WatchdogStop => f.sent = 0.0,
             _ => {}
         }
         Vec::new()

@@ -172,6 +172,8 @@ mod tests {
     #[test]
     fn wire_codes_become_names() {
         let seen = RobotEventKind::Encounter(packets::RobotEncountered {
+            at_ms: 10,
+            seq: 1,
             robot_id: 3,
             side: 1,
             led: 0,
@@ -185,6 +187,8 @@ mod tests {
         };
         assert_eq!((s.robot, s.side, s.range_mm), (3, Side::Rear, 40));
         let front = RobotEventKind::Obstacle(packets::Obstacle {
+            at_ms: 20,
+            seq: 2,
             side: 0,
             power_level: 1,
             led: 0,

@@ -266,6 +266,7 @@ struct JsonRobot {
     checksum_errors: u64,
     dropped_frames: u64,
     rtt_mean_ms: Option<f64>,
+    delivery: robot_actor::DeliveryCounts,
     link_losses: u64,
     reconnects: u64,
 }
@@ -454,6 +455,7 @@ impl Report {
                     checksum_errors: r.link.checksum_errors,
                     dropped_frames: r.link.dropped_frames,
                     rtt_mean_ms: r.link.rtt_mean.map(|d| d.as_secs_f64() * 1e3),
+                    delivery: r.link.delivery,
                     link_losses: r.link.losses,
                     reconnects: r.link.reconnects,
                 })

@@ -215,6 +215,26 @@ fn a_panicking_behaviour_is_restarted_after_every_robot_stopped() {
 }
 
 #[test]
+fn square_walk_closes_its_squares_over_links_that_lose_packets_in_bursts() {
+    let report = run(
+        plan("square_walk", 3).link_profile("poor"),
+        &Registry::builtin(),
+    );
+    assert!(report.success(), "{report}");
+    assert_eq!(report.robot_collisions(), Some(0), "{report}");
+    let d: Vec<_> = report.robots.iter().map(|r| r.link.delivery).collect();
+    let again: u64 = d
+        .iter()
+        .map(|d| d.commands_resent + d.events_recovered)
+        .sum();
+    assert!(
+        again > 0,
+        "5 % of packets lost and nothing sent again: {d:?}"
+    );
+    assert!(d.iter().all(|d| d.events_lost == 0), "{d:?}");
+}
+
+#[test]
 fn a_link_profile_gives_the_simulated_links_its_latency() {
     let rtt_ms = |link: Option<world::cli::LinkProfileArg>| {
         let report = run(

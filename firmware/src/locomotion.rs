@@ -258,6 +258,46 @@ impl Locomotion {
         }
     }
 
+    /// Drops every move older than `keep_from` (in wrapping id order; 0 drops them all), the
+    /// running one included, reporting each with `outcome`; later moves stay queued, so a clear
+    /// sent again after a loss never drops a move queued after it.
+    pub fn abort_older(
+        &mut self,
+        keep_from: u16,
+        outcome: MoveOutcome,
+        events: &mut impl FnMut(LocomotionEvent),
+    ) {
+        if keep_from == 0 {
+            return self.abort(outcome, events);
+        }
+        let older = |id: u16| (id.wrapping_sub(keep_from) as i16) < 0;
+        let had_any = !self.is_empty();
+        let running = self.active.map(|a| a.mv.id);
+        if let Some(id) = running.filter(|&id| older(id)) {
+            self.active = None;
+            events(LocomotionEvent::Finished { id, outcome });
+            self.chain_origin = None;
+            self.carried_mps = None;
+            self.last_dir = (0, 0);
+            self.speed_pid.reset();
+            self.balance_pid.reset();
+        }
+        for _ in 0..self.queue.len() {
+            let Some(mv) = self.queue.pop_front() else {
+                break;
+            };
+            if older(mv.id) {
+                events(LocomotionEvent::Finished { id: mv.id, outcome });
+            } else {
+                // Popped from a queue that had room for it.
+                let _ = self.queue.push_back(mv);
+            }
+        }
+        if had_any && self.is_empty() {
+            events(LocomotionEvent::QueueEmpty);
+        }
+    }
+
     /// One control step of `dt` seconds: duties for the running move, or `None` when idle.
     pub fn step(
         &mut self,

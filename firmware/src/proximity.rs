@@ -215,6 +215,8 @@ impl Proximity {
         let side = s.side;
         if s.obstacle {
             return Some(ProximityEvent::Obstacle(Obstacle {
+                at_ms: 0,
+                seq: 0,
                 side: side as u8,
                 power_level: reading.power,
                 led: reading.led,
@@ -226,6 +228,8 @@ impl Proximity {
         }
         self.last_robot = Some((robot_id, side, reading.power));
         Some(ProximityEvent::Robot(RobotEncountered {
+            at_ms: 0,
+            seq: 0,
             robot_id,
             side: side as u8,
             led: reading.led,
@@ -486,6 +490,8 @@ mod tests {
         assert_eq!(
             p.poll_event(ms(5), &s),
             Some(ProximityEvent::Obstacle(Obstacle {
+                at_ms: 0,
+                seq: 0,
                 side: Side::Rear as u8,
                 power_level: 2,
                 led: 4,

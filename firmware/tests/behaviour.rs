@@ -376,7 +376,7 @@ fn stop_clears_the_queue_and_halts_the_motors() {
     r.send(straight(0.5, 0.2, 2));
     r.run(Duration::from_millis(100), |_, _| {});
     assert_ne!(r.fw.board().pwm, (0, 0));
-    r.send(Stop {});
+    r.send(Stop { keep_from: 0 });
     let outcomes: Vec<(u16, u8)> = r
         .drain()
         .into_iter()
@@ -388,6 +388,86 @@ fn stop_clears_the_queue_and_halts_the_motors() {
     let stopped = MoveOutcome::Stopped as u8;
     assert_eq!(outcomes, vec![(1, stopped), (2, stopped)]);
     assert_eq!(r.fw.board().pwm, (0, 0));
+}
+
+#[test]
+fn moves_sent_again_run_once_in_order_and_a_stop_keeps_what_came_after_it() {
+    let mut r = robot();
+    let taken = |r: &MockRobot| r.fw.state().locomotion.last_move_id;
+    r.send(straight(0.3, 0.2, 1));
+    // Move 2 was lost on the way: 3 waits for it, and a copy of 1 is not run twice.
+    r.send(straight(0.3, 0.2, 3));
+    r.send(straight(0.3, 0.2, 1));
+    r.run(Duration::from_millis(20), |_, _| {});
+    assert_eq!((taken(&r), r.fw.state().locomotion.queue_len), (1, 1));
+    r.send(rotate(90.0, 0.1, 2));
+    r.send(straight(0.3, 0.2, 3));
+    r.run(Duration::from_millis(20), |_, _| {});
+    assert_eq!((taken(&r), r.fw.state().locomotion.queue_len), (3, 3));
+    // Moves 4 and 5 never arrived; the stop keeps 6 on, and says 4 and 5 are cleared.
+    r.send(Stop { keep_from: 6 });
+    r.send(straight(0.1, 0.2, 6));
+    r.send(Stop { keep_from: 6 });
+    let outcomes: Vec<(u16, u8)> = r
+        .drain()
+        .into_iter()
+        .filter_map(|p| match p {
+            AnyPacket::MoveFinished(m) => Some((m.move_id, m.outcome)),
+            _ => None,
+        })
+        .collect();
+    let (stopped, cleared) = (MoveOutcome::Stopped as u8, MoveOutcome::Cleared as u8);
+    assert_eq!(
+        outcomes,
+        [
+            (4, cleared),
+            (5, cleared),
+            (1, stopped),
+            (2, stopped),
+            (3, stopped)
+        ]
+    );
+    r.run(Duration::from_millis(20), |_, _| {});
+    assert_eq!((taken(&r), r.fw.state().locomotion.queue_len), (6, 1));
+    let mut done = false;
+    run_alive(&mut r, Duration::from_millis(3000), |p| {
+        done |= finished(p, 6);
+        done
+    });
+    assert!(done, "the move sent after the stop ran");
+}
+
+#[test]
+fn events_are_stamped_numbered_and_sent_again_when_asked() {
+    let mut r = robot();
+    r.run(Duration::from_millis(40), |_, _| {});
+    r.send(straight(0.02, 0.1, 1));
+    r.send(straight(0.02, 0.1, 2));
+    let mut events: Vec<(u16, u32, u16)> = Vec::new();
+    run_alive(&mut r, Duration::from_millis(2000), |p| {
+        if let AnyPacket::MoveFinished(m) = p {
+            events.push((m.seq, m.at_ms, m.move_id));
+        }
+        events.len() == 2
+    });
+    assert_eq!(events.len(), 2, "{events:?}");
+    let (first, second) = (events[0], events[1]);
+    assert!(
+        second.0 > first.0 && second.1 > first.1 && first.1 >= 40,
+        "{events:?}"
+    );
+    let newest = r.fw.state().link.events_sent;
+    assert!(newest >= second.0, "the state names the newest event");
+    r.send(EventReplay { from_seq: first.0 });
+    let again: Vec<(u16, u32, u16)> = r
+        .drain()
+        .into_iter()
+        .filter_map(|p| match p {
+            AnyPacket::MoveFinished(m) => Some((m.seq, m.at_ms, m.move_id)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(again, events, "the same events, as first sent");
 }
 
 #[test]
@@ -416,7 +496,7 @@ fn encoder_counts_follow_the_wheels_through_bang_bang_steering() {
             });
             run_alive(&mut r, Duration::from_millis(ms), |_| false);
         }
-        r.send(Stop {});
+        r.send(Stop { keep_from: 0 });
         run_alive(&mut r, Duration::from_millis(300), |_| false);
         let e = r.fw.state().encoders;
         for (k, counted) in [e.left_ticks, e.right_ticks].into_iter().enumerate() {

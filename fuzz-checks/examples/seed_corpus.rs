@@ -104,6 +104,8 @@ fn frames() -> Vec<(String, Vec<u8>)> {
         }
         .into(),
         MoveFinished {
+            at_ms: 12_345,
+            seq: 3,
             move_id: 7,
             outcome: 0,
         }
@@ -182,8 +184,9 @@ fn host_sessions() -> Vec<(String, Vec<u8>)> {
             }
             .into(),
         ),
-        ("clear", ClearQueue {}.into()),
-        ("stop", Stop {}.into()),
+        ("clear", ClearQueue { keep_from: 3 }.into()),
+        ("stop", Stop { keep_from: 0 }.into()),
+        ("replay", EventReplay { from_seq: 1 }.into()),
         (
             "wheels",
             WheelSpeeds {

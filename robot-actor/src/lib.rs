@@ -10,8 +10,8 @@ pub mod settings;
 pub mod shard;
 
 pub use actor::{
-    Incompatibility, MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent, RobotEventKind,
-    StateBatch, StateUpdated, WriteSettings,
+    DeliveryCounts, Incompatibility, MoveCommand, RobotActor, RobotConfig, RobotError, RobotEvent,
+    RobotEventKind, StateBatch, StateUpdated, WriteSettings,
 };
 pub use odometry::{Odometry, Pose};
 pub use robot::{CallError, Robot};

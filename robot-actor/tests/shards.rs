@@ -86,6 +86,8 @@ async fn sharded_robots_deliver_every_state_in_order_and_events_between_them() {
             let _ = sink.send(LinkEvent::Packet(frame(&s)));
             if seq == STATES / 2 {
                 let _ = sink.send(LinkEvent::Packet(frame(&packets::WatchdogStop {
+                    at_ms: 0,
+                    seq: 1,
                     silent_ms: 0,
                 })));
             }

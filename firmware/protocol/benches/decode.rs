@@ -73,6 +73,7 @@ fn realistic_state() -> RobotState {
             queue_len: 3,
             active_move: 9,
             progress_m: 0.734,
+            last_move_id: 11,
         },
         led: [255, 64, 8],
         link: LinkState {
@@ -81,6 +82,7 @@ fn realistic_state() -> RobotState {
             rx_errors: 7,
             tx_dropped: 2,
             overruns: 1,
+            events_sent: 4_711,
         },
     }
 }
@@ -151,6 +153,7 @@ mod mirror {
         pub queue_len: u8,
         pub active_move: u16,
         pub progress_m: f32,
+        pub last_move_id: u16,
     }
 
     #[derive(Serialize, Deserialize, Debug, PartialEq)]
@@ -160,6 +163,7 @@ mod mirror {
         pub rx_errors: u16,
         pub tx_dropped: u16,
         pub overruns: u16,
+        pub events_sent: u16,
     }
 
     #[derive(Serialize, Deserialize, Debug, PartialEq)]
@@ -239,6 +243,7 @@ mod mirror {
                     queue_len: lo.queue_len,
                     active_move: lo.active_move,
                     progress_m: lo.progress_m,
+                    last_move_id: lo.last_move_id,
                 },
                 led: s.led,
                 link: LinkCounts {
@@ -247,6 +252,7 @@ mod mirror {
                     rx_errors: li.rx_errors,
                     tx_dropped: li.tx_dropped,
                     overruns: li.overruns,
+                    events_sent: li.events_sent,
                 },
             }
         }

@@ -20,8 +20,11 @@ pub use state::{ReducedState, RobotState};
 
 /// Version of the wire protocol spoken by this crate; carried in the hello packet.
 ///
-/// Version 2 added `field_offset` to the Nack packet and the Nack reasons 5 to 7.
-pub const PROTOCOL_VERSION: u16 = 2;
+/// Version 2 added `field_offset` to the Nack packet and the Nack reasons 5 to 7. Version 3
+/// stamps every event with the robot's time and a number (and adds `EventReplay`), makes moves,
+/// `Stop` and `ClearQueue` safe to send again after a loss (`last_move_id`, `keep_from`), and
+/// reports the newest event number in the state.
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// Everything that can go wrong encoding or decoding; variant names say phase and cause.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

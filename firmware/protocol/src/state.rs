@@ -112,6 +112,9 @@ wire_struct! {
         pub active_move: u16,
         /// Distance done in the running move, metres.
         pub progress_m: f32,
+        /// Id of the newest move accepted since the last `Hello` (0 = none): a move with this id
+        /// or an earlier one is a copy sent again and is ignored.
+        pub last_move_id: u16,
     }
 }
 
@@ -128,6 +131,8 @@ wire_struct! {
         pub tx_dropped: u16,
         /// Main loop overruns (thesis 11.1).
         pub overruns: u16,
+        /// Number of the newest event sent (0 = none yet), so the host notices a lost last event.
+        pub events_sent: u16,
     }
 }
 

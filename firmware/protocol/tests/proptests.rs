@@ -111,6 +111,7 @@ fn arb_packet(t: PacketType) -> BoxedStrategy<AnyPacket> {
         T::ReflectorConfig => pod_packet::<ReflectorConfig>(),
         T::Ping => pod_packet::<Ping>(),
         T::HelloRequest => pod_packet::<HelloRequest>(),
+        T::EventReplay => pod_packet::<EventReplay>(),
     }
 }
 

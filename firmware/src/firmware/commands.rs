@@ -19,11 +19,18 @@ impl<B: Board> Firmware<B> {
         match packet {
             AnyPacket::Ping(p) => self.pong(p),
             AnyPacket::HelloRequest(_) => self.send_hello(),
+            AnyPacket::EventReplay(r) => self.replay_events(r.from_seq),
             AnyPacket::StraightMovement(m) => self.enqueue(t, straight_move(m)),
             AnyPacket::RotationMovement(m) => self.enqueue(t, rotation_move(m)),
             AnyPacket::ArcMovement(m) => self.enqueue(t, arc_move(m)),
-            AnyPacket::ClearQueue(_) => self.clear_queue(),
-            AnyPacket::Stop(_) => self.halt(MoveOutcome::Stopped),
+            AnyPacket::ClearQueue(c) => {
+                self.skip_moves_before(c.keep_from);
+                self.clear_queue(c.keep_from);
+            }
+            AnyPacket::Stop(s) => {
+                self.skip_moves_before(s.keep_from);
+                self.halt_keeping(s.keep_from, MoveOutcome::Stopped);
+            }
             AnyPacket::WheelSpeeds(w) => self.drive_wheel_speeds(t, w),
             AnyPacket::MotorPower(m) => self.drive_motor_power(m),
             AnyPacket::LineFollow(f) => self.line_follow(f),
@@ -56,7 +63,9 @@ impl<B: Board> Firmware<B> {
         }
     }
 
+    /// Introduces the robot; a host greeted afresh numbers its moves from 1 again.
     pub(super) fn send_hello(&mut self) {
+        self.last_move_id = 0;
         let hello = Hello::new(&self.settings, FIRMWARE_VERSION);
         self.send(&hello);
     }
@@ -72,9 +81,33 @@ impl<B: Board> Firmware<B> {
 
     // --- Moves and direct drive ---
 
-    fn clear_queue(&mut self) {
-        self.abort_moves(MoveOutcome::Cleared);
-        if self.drive == Drive::Moves {
+    /// Moves numbered before `keep_from` that never arrived are void: each is reported cleared,
+    /// so the host stops waiting for it, and `keep_from` is the next move taken.
+    fn skip_moves_before(&mut self, keep_from: u16) {
+        if keep_from == 0 || self.last_move_id == 0 {
+            return;
+        }
+        // At most a queue's worth of moves can be outstanding; a longer gap is a stale request.
+        let gap = keep_from.wrapping_sub(next_move_id(self.last_move_id));
+        if gap == 0 || gap > 32 {
+            return;
+        }
+        let mut id = next_move_id(self.last_move_id);
+        while id != keep_from {
+            self.send_event(packets::MoveFinished {
+                at_ms: 0,
+                seq: 0,
+                move_id: id,
+                outcome: MoveOutcome::Cleared as u8,
+            });
+            self.last_move_id = id;
+            id = next_move_id(id);
+        }
+    }
+
+    fn clear_queue(&mut self, keep_from: u16) {
+        self.abort_moves_older(keep_from, MoveOutcome::Cleared);
+        if self.drive == Drive::Moves && self.locomotion.is_empty() {
             self.drive = Drive::Idle;
         }
     }
@@ -202,6 +235,13 @@ impl<B: Board> Firmware<B> {
     }
 
     fn enqueue(&mut self, t: PacketType, mv: Move) {
+        // Moves run in the order the host numbered them: a copy sent again (an id already taken)
+        // is ignored, and so is a move after a gap (one before it was lost on the way: the host
+        // sends the gap again, then this one).
+        if self.last_move_id != 0 && mv.id != next_move_id(self.last_move_id) {
+            return;
+        }
+        self.last_move_id = mv.id;
         if self.drive != Drive::Moves {
             // Moves take over from teleop and line following.
             self.set_drive(Drive::Moves);
@@ -212,6 +252,11 @@ impl<B: Board> Firmware<B> {
             Err(EnqueueError::BadParameter) => self.nack(t, NackReason::BadParameter),
         }
     }
+}
+
+/// The id after `id` in the host's numbering, which wraps and never uses 0.
+fn next_move_id(id: u16) -> u16 {
+    id.wrapping_add(1).max(1)
 }
 
 // Move packets in the units locomotion works in (radians, not the protocol's degrees).

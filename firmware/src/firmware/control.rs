@@ -22,7 +22,9 @@ impl<B: Board> Firmware<B> {
         self.scheduler.schedule(Channel::MainLoop, next);
         if let Some(late) = overrun {
             self.state.link.overruns = self.state.link.overruns.wrapping_add(1);
-            self.send(&packets::LoopOverrun {
+            self.send_event(packets::LoopOverrun {
+                at_ms: 0,
+                seq: 0,
                 late_us: late.as_micros().min(u64::from(u32::MAX)) as u32,
             });
         }
@@ -80,8 +82,9 @@ impl<B: Board> Firmware<B> {
             return false;
         }
         self.halt(packets::MoveOutcome::Blocked);
-        self.send(&packets::Reflex {
+        self.send_event_at(packets::Reflex {
             at_ms: now.as_millis() as u32,
+            seq: 0,
             side: side as u8,
             power_level: power,
         });
@@ -105,8 +108,9 @@ impl<B: Board> Firmware<B> {
                 && self.state.wheels.right_pwm == 0,
         };
         if let Some(b) = self.bump.update(&sample, &self.settings.bump) {
-            self.send(&packets::Bump {
+            self.send_event_at(packets::Bump {
                 at_ms: b.at.as_millis() as u32,
+                seq: 0,
                 peak_mg: b.peak_mg.clamp(0.0, f32::from(u16::MAX)) as u16,
                 moved_mm: (b.moved_m * 1e3).clamp(0.0, f32::from(u16::MAX)) as u16,
                 along_mm: (b.moved[0] * 1e3).clamp(-32767.0, 32767.0) as i16,

@@ -40,8 +40,13 @@ impl<B: Board> Firmware<B> {
     }
 
     pub(super) fn abort_moves(&mut self, outcome: MoveOutcome) {
+        self.abort_moves_older(0, outcome);
+    }
+
+    /// Drops the moves older than `keep_from` (0: all of them).
+    pub(super) fn abort_moves_older(&mut self, keep_from: u16, outcome: MoveOutcome) {
         let mut events: Vec<LocomotionEvent, 12> = Vec::new();
-        self.locomotion.abort(outcome, &mut |e| {
+        self.locomotion.abort_older(keep_from, outcome, &mut |e| {
             let _ = events.push(e);
         });
         for e in events {
@@ -51,18 +56,33 @@ impl<B: Board> Firmware<B> {
 
     /// Everything stops: queue cleared, teleop and following off, motors off.
     pub(super) fn halt(&mut self, outcome: MoveOutcome) {
-        self.abort_moves(outcome);
-        self.set_drive(Drive::Idle);
+        self.halt_keeping(0, outcome);
+    }
+
+    /// Everything stops but the moves numbered `keep_from` or later (0: none), which start
+    /// after the stop.
+    pub(super) fn halt_keeping(&mut self, keep_from: u16, outcome: MoveOutcome) {
+        self.abort_moves_older(keep_from, outcome);
+        let next = if self.locomotion.is_empty() {
+            Drive::Idle
+        } else {
+            Drive::Moves
+        };
+        self.set_drive(next);
         self.apply_pwm(0.0, 0.0);
     }
 
     pub(super) fn locomotion_event(&mut self, e: LocomotionEvent) {
         match e {
-            LocomotionEvent::Finished { id, outcome } => self.send(&packets::MoveFinished {
+            LocomotionEvent::Finished { id, outcome } => self.send_event(packets::MoveFinished {
+                at_ms: 0,
+                seq: 0,
                 move_id: id,
                 outcome: outcome as u8,
             }),
-            LocomotionEvent::QueueEmpty => self.send(&packets::QueueEmpty {}),
+            LocomotionEvent::QueueEmpty => {
+                self.send_event(packets::QueueEmpty { at_ms: 0, seq: 0 })
+            }
         }
     }
 }

@@ -2,12 +2,14 @@
 //! out, with the counters, refusals and log messages that go through it.
 
 use protocol::packets::Nack;
-use protocol::packets::{LogLevel, NackReason, Packet, PacketType};
+use protocol::packets::{Event, LogLevel, NackReason, Packet, PacketType};
 use protocol::settings::SettingsError;
 use protocol::slip::{self};
 use protocol::{Error, Frame, MAX_PACKET};
 
-use super::{Firmware, OutPacket};
+use heapless::Vec;
+
+use super::{Firmware, OutPacket, EVENT_FRAME};
 use crate::hal::Board;
 use crate::time::Instant;
 
@@ -99,6 +101,51 @@ impl<B: Board> Firmware<B> {
             self.state.link.tx_dropped = self.state.link.tx_dropped.wrapping_add(1);
         } else {
             self.state.link.tx_packets = self.state.link.tx_packets.wrapping_add(1);
+        }
+    }
+
+    /// Sends an event stamped now and numbered.
+    pub(super) fn send_event<E: Event>(&mut self, mut e: E) {
+        e.stamp(self.now.as_millis() as u32, 0);
+        self.send_event_at(e);
+    }
+
+    /// Sends an event whose time is already set (when it began, not when it is reported),
+    /// numbered, and keeps it for a replay.
+    pub(super) fn send_event_at<E: Event>(&mut self, mut e: E) {
+        let seq = self.state.link.events_sent.wrapping_add(1).max(1);
+        e.stamp(e.at_ms(), seq);
+        self.state.link.events_sent = seq;
+        let mut frame: Vec<u8, EVENT_FRAME> = Vec::new();
+        let _ = frame.resize_default(EVENT_FRAME);
+        if let Ok(n) = protocol::encode(&e, &mut frame) {
+            frame.truncate(n);
+            if self.events.is_full() {
+                self.events.pop_front();
+            }
+            let _ = self.events.push_back((seq, frame));
+        }
+        self.send(&e);
+    }
+
+    /// Sends again every kept event numbered `from` or later, oldest first.
+    pub(super) fn replay_events(&mut self, from: u16) {
+        for i in 0..self.events.len() {
+            let Some((seq, frame)) = self.events.iter().nth(i) else {
+                break;
+            };
+            if (seq.wrapping_sub(from) as i16) < 0 {
+                continue;
+            }
+            let mut out = OutPacket::new();
+            if out.extend_from_slice(frame).is_err() {
+                continue;
+            }
+            if self.tx.push_back(out).is_err() {
+                self.state.link.tx_dropped = self.state.link.tx_dropped.wrapping_add(1);
+            } else {
+                self.state.link.tx_packets = self.state.link.tx_packets.wrapping_add(1);
+            }
         }
     }
 

@@ -40,6 +40,11 @@ pub const TX_QUEUE: usize = 24;
 
 /// One encoded outgoing packet.
 pub type OutPacket = Vec<u8, MAX_PACKET>;
+/// Events kept for the host to ask for again (`EventReplay`): at the busiest (a move finishing
+/// every few ms, sightings every 20 ms) more than a Bluetooth link's worst round trip.
+pub const EVENT_LOG: usize = 32;
+/// Bytes of the longest event frame.
+const EVENT_FRAME: usize = 24;
 
 /// The robot's embedded control system running on board `B`.
 pub struct Firmware<B: Board> {
@@ -60,6 +65,10 @@ pub struct Firmware<B: Board> {
     watchdog: Watchdog,
     slip: SlipDecoder,
     tx: Deque<OutPacket, TX_QUEUE>,
+    /// The last events sent, by number, as they went out.
+    events: Deque<(u16, Vec<u8, EVENT_FRAME>), EVENT_LOG>,
+    /// The newest move id accepted since the last hello (0: none): older ids are copies.
+    last_move_id: u16,
     ir_message: u16,
     last_main: Option<Instant>,
     now: Instant,
@@ -106,6 +115,8 @@ impl<B: Board> Firmware<B> {
             watchdog: Watchdog::new(),
             slip: SlipDecoder::new(),
             tx: Deque::new(),
+            events: Deque::new(),
+            last_move_id: 0,
             ir_message: 0,
             last_main: None,
             now: Instant::ZERO,
@@ -187,7 +198,9 @@ impl<B: Board> Firmware<B> {
         if let Some(silent) = self.watchdog.check(now, timeout) {
             if self.drive != Drive::Idle || !self.locomotion.is_empty() {
                 self.halt(MoveOutcome::Stopped);
-                self.send(&packets::WatchdogStop {
+                self.send_event(packets::WatchdogStop {
+                    at_ms: 0,
+                    seq: 0,
                     silent_ms: silent.as_millis().min(u64::from(u32::MAX)) as u32,
                 });
                 crate::fw_log!(

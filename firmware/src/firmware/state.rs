@@ -42,6 +42,7 @@ impl<B: Board> Firmware<B> {
         s.locomotion.queue_len = self.locomotion.len() as u8;
         s.locomotion.active_move = self.locomotion.active_id().unwrap_or(0);
         s.locomotion.progress_m = self.locomotion.progress();
+        s.locomotion.last_move_id = self.last_move_id;
         s.proximity = self.proximity.state();
         let mut flags = 0;
         if self.line.lost {

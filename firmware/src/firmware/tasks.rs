@@ -17,7 +17,9 @@ impl<B: Board> Firmware<B> {
         let raw = self.line_sensor.sample(&mut self.board);
         let reading = self.line_sensor.process(&raw, &self.settings.line_sensor);
         if reading.lost != self.line.lost {
-            self.send(&packets::LineEvent {
+            self.send_event(packets::LineEvent {
+                at_ms: 0,
+                seq: 0,
                 lost: u8::from(reading.lost),
                 position_um: self.line.position_um,
             });
@@ -44,8 +46,8 @@ impl<B: Board> Firmware<B> {
         self.scheduler.schedule(Channel::IrReport, next);
         while let Some(e) = self.proximity.poll_event(now, &self.settings.proximity) {
             match e {
-                ProximityEvent::Obstacle(o) => self.send(&o),
-                ProximityEvent::Robot(r) => self.send(&r),
+                ProximityEvent::Obstacle(o) => self.send_event(o),
+                ProximityEvent::Robot(r) => self.send_event(r),
             }
         }
     }

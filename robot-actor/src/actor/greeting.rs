@@ -24,6 +24,9 @@ pub(super) struct Greeting {
 
 impl RobotActor {
     pub(super) fn on_hello(&mut self, hello: Hello) {
+        // A robot greets when a link opens and after a reboot: either way its event numbers
+        // start again.
+        self.delivery.reset();
         if self.greeting.greeted || self.greeting.refused.is_some() {
             // The robot greets on connect and on request: one link, one greeting.
             return;

@@ -37,6 +37,8 @@ pub struct LinkStats {
     pub silent_for: Option<Duration>,
     /// Links lost so far.
     pub losses: u64,
+    /// What delivery over a lossy link did: events asked for again, commands sent again.
+    pub delivery: super::DeliveryCounts,
     /// Successful reconnects.
     pub reconnects: u64,
 }
@@ -60,6 +62,8 @@ pub(super) struct Liveness {
     backoff: Duration,
     /// Counters and round-trip times over every link.
     pub(super) stats: LinkStats,
+    /// The latest round trip, for delivery's wait.
+    pub(super) last_rtt: Option<Duration>,
     /// Pings waiting for their pong, by sequence number, with when each was sent.
     pings: HashMap<u32, Instant>,
     next_ping: u32,
@@ -79,6 +83,7 @@ impl Liveness {
             link_error: None,
             backoff: min_backoff,
             stats: LinkStats::default(),
+            last_rtt: None,
             pings: HashMap::new(),
             next_ping: 0,
             rtt_sum: Duration::ZERO,
@@ -91,6 +96,7 @@ impl Liveness {
         if let Some(sent) = self.pings.remove(&seq) {
             let rtt = Instant::now() - sent;
             self.stats.rtt = Some(rtt);
+            self.last_rtt = Some(rtt);
             self.rtt_sum += rtt;
             self.rtt_count += 1;
             self.stats.rtt_mean = Some(self.rtt_sum / self.rtt_count);

@@ -105,6 +105,9 @@ pub struct RobotEvent {
     pub robot_id: u16,
     /// When it arrived.
     pub at: Instant,
+    /// When it happened, the robot's uptime in milliseconds (events the robot numbers; `None`
+    /// for what the host itself noticed: a hello, a lost link, a refusal).
+    pub robot_ms: Option<u32>,
     /// What happened.
     pub kind: RobotEventKind,
 }

@@ -21,6 +21,7 @@ use crate::link::{Connector, LinkEvent};
 use crate::odometry::{Geometry, Odometry};
 
 mod batch;
+mod delivery;
 mod error;
 mod greeting;
 mod liveness;
@@ -29,6 +30,7 @@ mod moves;
 mod settings;
 
 pub use batch::{StateBatch, SubscribeBatches};
+pub use delivery::DeliveryCounts;
 pub use error::{incompatibilities, Incompatibility, RobotError};
 pub use liveness::LinkStats;
 pub use messages::{
@@ -39,6 +41,7 @@ pub use messages::{
 };
 pub use settings::host_settings_layout;
 
+use delivery::{Delivery, Expect};
 use greeting::Greeting;
 use liveness::Liveness;
 use moves::Moves;
@@ -57,6 +60,7 @@ pub struct RobotActor {
     odometry: Odometry,
     subscribers: Subscribers,
     moves: Moves,
+    delivery: Delivery,
 }
 
 /// The robot's latest reflected state.
@@ -106,6 +110,7 @@ impl RobotActor {
             odometry,
             subscribers: Subscribers::default(),
             moves: Moves::new(),
+            delivery: Delivery::default(),
         }
     }
 
@@ -123,9 +128,20 @@ impl RobotActor {
     }
 
     fn send<P: Packet>(&mut self, p: &P) -> Result<(), RobotError> {
-        let tx = self.link.tx.as_ref().ok_or_else(|| self.not_connected())?;
+        self.send_frame(p).map(|_| ())
+    }
+
+    /// Sends `p` and gives back its frame, for sending again if the robot does not show it.
+    fn send_frame<P: Packet>(&mut self, p: &P) -> Result<Vec<u8>, RobotError> {
         let (buf, n) = protocol::frame::encode_to_array(p);
-        match tx.try_send(buf[..n].to_vec()) {
+        let frame = buf[..n].to_vec();
+        self.send_bytes(frame.clone())?;
+        Ok(frame)
+    }
+
+    fn send_bytes(&mut self, frame: Vec<u8>) -> Result<(), RobotError> {
+        let tx = self.link.tx.as_ref().ok_or_else(|| self.not_connected())?;
+        match tx.try_send(frame) {
             Ok(()) => {
                 self.link.stats.packets_out += 1;
                 Ok(())
@@ -147,11 +163,17 @@ impl RobotActor {
     }
 
     fn emit(&self, kind: RobotEventKind) {
+        self.emit_at(kind, None);
+    }
+
+    /// Emits what the robot reported as happening at `robot_ms` of its clock.
+    fn emit_at(&self, kind: RobotEventKind, robot_ms: Option<u32>) {
         // States still waiting in this thread's batches happened before the event.
         batch::flush();
         let e = RobotEvent {
             robot_id: self.robot_id(),
             at: Instant::now(),
+            robot_ms,
             kind,
         };
         for s in &self.subscribers.events {
@@ -191,6 +213,7 @@ impl RobotActor {
                 self.reflected.state = s;
                 self.reflected.full_at = Some(at);
                 self.publish_state(false, at);
+                self.redeliver(&s);
             }
             AnyPacket::ReducedState(r) => {
                 self.reflected.merge_reduced(r);
@@ -198,7 +221,12 @@ impl RobotActor {
                 self.publish_state(true, at);
             }
             AnyPacket::Hello(h) => self.on_hello(h),
-            AnyPacket::Pong(p) => self.link.on_pong(p.seq),
+            AnyPacket::Pong(p) => {
+                self.link.on_pong(p.seq);
+                if let Some(rtt) = self.link.last_rtt.take() {
+                    self.delivery.on_rtt(rtt);
+                }
+            }
             AnyPacket::SettingsData(d) => self.on_settings_data(d),
             AnyPacket::SettingsSaved(_) => self.mirror.saved(),
             AnyPacket::Log(l) => {
@@ -228,19 +256,82 @@ impl RobotActor {
                 }
                 self.emit(RobotEventKind::Refused(n));
             }
-            AnyPacket::MoveFinished(m) => self.on_move_finished(m),
-            AnyPacket::QueueEmpty(_) => self.on_queue_empty(),
-            AnyPacket::Obstacle(o) => self.emit(RobotEventKind::Obstacle(o)),
-            AnyPacket::RobotEncountered(e) => self.emit(RobotEventKind::Encounter(e)),
-            AnyPacket::LineEvent(e) => self.emit(RobotEventKind::Line(e.lost != 0)),
-            AnyPacket::WatchdogStop(_) => self.emit(RobotEventKind::WatchdogStop),
-            AnyPacket::LoopOverrun(o) => self.emit(RobotEventKind::Overrun(o.late_us)),
-            AnyPacket::Bump(b) => self.emit(RobotEventKind::Bump(b)),
-            AnyPacket::Reflex(r) => self.emit(RobotEventKind::Reflex(r)),
+            AnyPacket::MoveFinished(m) if self.news(&m) => self.on_move_finished(m),
+            AnyPacket::QueueEmpty(e) if self.news(&e) => self.on_queue_empty(e.at_ms),
+            AnyPacket::Obstacle(o) if self.news(&o) => {
+                self.emit_at(RobotEventKind::Obstacle(o), Some(o.at_ms))
+            }
+            AnyPacket::RobotEncountered(e) if self.news(&e) => {
+                self.emit_at(RobotEventKind::Encounter(e), Some(e.at_ms))
+            }
+            AnyPacket::LineEvent(e) if self.news(&e) => {
+                self.emit_at(RobotEventKind::Line(e.lost != 0), Some(e.at_ms))
+            }
+            AnyPacket::WatchdogStop(e) if self.news(&e) => {
+                self.delivery.robot_stopped();
+                self.emit_at(RobotEventKind::WatchdogStop, Some(e.at_ms))
+            }
+            AnyPacket::LoopOverrun(o) if self.news(&o) => {
+                self.emit_at(RobotEventKind::Overrun(o.late_us), Some(o.at_ms))
+            }
+            AnyPacket::Bump(b) if self.news(&b) => {
+                self.emit_at(RobotEventKind::Bump(b), Some(b.at_ms))
+            }
+            AnyPacket::Reflex(r) if self.news(&r) => {
+                self.delivery.robot_stopped();
+                self.emit_at(RobotEventKind::Reflex(r), Some(r.at_ms))
+            }
+            // A copy of an event already heard (a replay crossing the original).
+            AnyPacket::MoveFinished(_)
+            | AnyPacket::QueueEmpty(_)
+            | AnyPacket::Obstacle(_)
+            | AnyPacket::RobotEncountered(_)
+            | AnyPacket::LineEvent(_)
+            | AnyPacket::WatchdogStop(_)
+            | AnyPacket::LoopOverrun(_)
+            | AnyPacket::Bump(_)
+            | AnyPacket::Reflex(_) => {}
             other => debug!(
                 packet = other.packet_type().name(),
                 "ignored host-bound packet"
             ),
+        }
+    }
+
+    /// Whether event `e` is news, not a copy of one heard already.
+    fn news<E: packets::Event>(&mut self, e: &E) -> bool {
+        self.delivery.admit(e.seq())
+    }
+
+    /// Asks again for events the robot sent that never came, and sends again what `state`
+    /// does not show: moves not taken, a stop or clear not carried out, a drive mode not entered.
+    fn redeliver(&mut self, state: &RobotState) {
+        let next = self.moves.next_id;
+        let again = self.delivery.on_state(state, next);
+        if let Some(from_seq) = again.replay_from {
+            debug!(
+                robot = self.robot_id(),
+                from_seq, "asking for lost events again"
+            );
+            let _ = self.send(&packets::EventReplay { from_seq });
+        }
+        for frame in again.frames {
+            let packet = frame.get(1).and_then(|&c| PacketType::from_code(c));
+            debug!(robot = self.robot_id(), ?packet, "sending a command again");
+            let _ = self.send_bytes(frame);
+        }
+        let wait = self.delivery.wait();
+        let moves = self.moves.not_taken(state.locomotion.last_move_id, wait);
+        if !moves.is_empty() {
+            debug!(
+                robot = self.robot_id(),
+                n = moves.len(),
+                "sending moves again"
+            );
+            self.delivery.counts.commands_resent += moves.len() as u64;
+        }
+        for frame in moves {
+            let _ = self.send_bytes(frame);
         }
     }
 
@@ -257,7 +348,10 @@ impl RobotActor {
             settings_known: self.greeting.hello.is_some() && self.mirror.chunks_missing == 0,
             pose: self.odometry.pose(),
             odometry_totals: self.odometry.totals(),
-            link: self.link.stats_now(),
+            link: LinkStats {
+                delivery: self.delivery.counts,
+                ..self.link.stats_now()
+            },
             pending_moves: self.moves.pending(),
             link_error: self.link.link_error.clone(),
             refused: self.greeting.refused.clone(),
@@ -275,7 +369,7 @@ impl Actor for RobotActor {
 
     fn stopped(&mut self, _: &mut Self::Context) {
         // Best effort: a robot left alone stops through its watchdog anyway.
-        let _ = self.send(&packets::Stop {});
+        let _ = self.send(&packets::Stop { keep_from: 0 });
     }
 }
 
@@ -344,20 +438,43 @@ impl Handler<Command> for RobotActor {
     type Result = Result<(), RobotError>;
     fn handle(&mut self, msg: Command, _: &mut Self::Context) -> Self::Result {
         match msg {
-            Command::ClearQueue => self.send(&packets::ClearQueue {}),
-            Command::Stop => self.send(&packets::Stop {}),
-            Command::WheelSpeeds(left_mps, right_mps) => self.send(&packets::WheelSpeeds {
-                left_mps,
-                right_mps,
-            }),
-            Command::MotorPower(left_pwm, right_pwm) => self.send(&packets::MotorPower {
-                left_pwm,
-                right_pwm,
-            }),
-            Command::FollowLine(speed) => self.send(&packets::LineFollow {
-                enable: u8::from(speed.is_some()),
-                speed_mps: speed.unwrap_or(0.0),
-            }),
+            Command::ClearQueue | Command::Stop => {
+                let keep_from = self.moves.next_id;
+                let stop = matches!(msg, Command::Stop);
+                let frame = if stop {
+                    self.send_frame(&packets::Stop { keep_from })?
+                } else {
+                    self.send_frame(&packets::ClearQueue { keep_from })?
+                };
+                self.delivery.sent_clear(keep_from, stop, frame);
+                Ok(())
+            }
+            Command::WheelSpeeds(left_mps, right_mps) => {
+                let p = packets::WheelSpeeds {
+                    left_mps,
+                    right_mps,
+                };
+                self.send_drive(&p, Expect::WheelSpeeds)
+            }
+            Command::MotorPower(left_pwm, right_pwm) => {
+                let p = packets::MotorPower {
+                    left_pwm,
+                    right_pwm,
+                };
+                self.send_drive(&p, Expect::MotorPower)
+            }
+            Command::FollowLine(speed) => {
+                let p = packets::LineFollow {
+                    enable: u8::from(speed.is_some()),
+                    speed_mps: speed.unwrap_or(0.0),
+                };
+                let expect = if speed.is_some() {
+                    Expect::Following
+                } else {
+                    Expect::NotFollowing
+                };
+                self.send_drive(&p, expect)
+            }
             Command::CalibrateLine(action) => self.send(&packets::LineCalibration {
                 action: action as u8,
             }),
@@ -371,6 +488,15 @@ impl Handler<Command> for RobotActor {
                 })
             }
         }
+    }
+}
+
+impl RobotActor {
+    /// Sends a drive command, kept until the robot's state shows its drive mode.
+    fn send_drive<P: Packet>(&mut self, p: &P, expect: Expect) -> Result<(), RobotError> {
+        let frame = self.send_frame(p)?;
+        self.delivery.sent_drive(expect, frame, self.moves.next_id);
+        Ok(())
     }
 }
 

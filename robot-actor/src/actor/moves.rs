@@ -1,5 +1,6 @@
 //! Move futures: the actor numbers each move it queues on the robot and resolves the caller's
-//! future, and its finished event's tag, from the robot's own `MoveFinished`.
+//! future, and its finished event's tag, from the robot's own `MoveFinished`; a move the robot's
+//! state shows it never took is sent again, in order (see `delivery`).
 
 use std::collections::HashMap;
 use std::time::Duration;
@@ -15,6 +16,10 @@ use super::{Enqueue, MoveCommand, Reply, RobotActor, RobotError, RobotEventKind,
 struct InFlight {
     /// When it was sent.
     sent_at: Instant,
+    /// When it was last sent (again).
+    last_sent: Instant,
+    /// Its frame, to send again.
+    frame: Vec<u8>,
     /// The caller's tag ([`Enqueue::tag`]), returned in the finished event.
     tag: u32,
     /// The caller's future.
@@ -24,7 +29,7 @@ struct InFlight {
 /// The moves the actor has queued on the robot.
 pub(super) struct Moves {
     /// The id the next move gets; never 0.
-    next_id: u16,
+    pub(super) next_id: u16,
     /// Moves in flight by the robot's move id.
     in_flight: HashMap<u16, InFlight>,
     /// Callers of [`WaitIdle`].
@@ -46,6 +51,36 @@ impl Moves {
         self.in_flight.len()
     }
 
+    /// The frames of the moves the robot has not taken (numbered after `taken`, its newest),
+    /// oldest first, when the oldest was last sent at least `wait` ago; each counts as sent now.
+    pub(super) fn not_taken(&mut self, taken: u16, wait: Duration) -> Vec<Vec<u8>> {
+        let now = Instant::now();
+        let mut ids: Vec<u16> = self
+            .in_flight
+            .keys()
+            .copied()
+            .filter(|&id| taken == 0 || super::delivery::after(id, taken))
+            .collect();
+        // Oldest first across a wrap: by distance from the robot's newest.
+        ids.sort_by_key(|&id| id.wrapping_sub(taken));
+        let Some(oldest) = ids.first().and_then(|id| self.in_flight.get(id)) else {
+            return Vec::new();
+        };
+        if now - oldest.last_sent < wait {
+            return Vec::new();
+        }
+        // A robot that took none since its hello (`taken` 0) and has moves in flight just
+        // lost the first: the order is the host's, so the first id is the oldest in flight.
+        let mut frames = Vec::with_capacity(ids.len());
+        for id in ids {
+            if let Some(m) = self.in_flight.get_mut(&id) {
+                m.last_sent = now;
+                frames.push(m.frame.clone());
+            }
+        }
+        frames
+    }
+
     /// Fails every move in flight (saying how long each had waited) and every idle waiter.
     pub(super) fn link_lost(&mut self, robot: u16, now: Instant) {
         for (_, m) in self.in_flight.drain() {
@@ -65,26 +100,30 @@ impl Moves {
 
 impl RobotActor {
     pub(super) fn on_move_finished(&mut self, m: packets::MoveFinished) {
+        let at_ms = m.at_ms;
         let outcome = MoveOutcome::try_from(m.outcome).unwrap_or(MoveOutcome::Stopped);
         let mut tag = 0;
         if let Some(f) = self.moves.in_flight.remove(&{ m.move_id }) {
             tag = f.tag;
             let _ = f.reply.send(Ok(outcome));
         }
-        self.emit(RobotEventKind::MoveFinished {
-            id: m.move_id,
-            tag,
-            outcome,
-        });
+        self.emit_at(
+            RobotEventKind::MoveFinished {
+                id: m.move_id,
+                tag,
+                outcome,
+            },
+            Some(at_ms),
+        );
     }
 
-    pub(super) fn on_queue_empty(&mut self) {
+    pub(super) fn on_queue_empty(&mut self, at_ms: u32) {
         if self.moves.in_flight.is_empty() {
             for w in self.moves.idle_waiters.drain(..) {
                 let _ = w.send(Ok(()));
             }
         }
-        self.emit(RobotEventKind::QueueEmpty);
+        self.emit_at(RobotEventKind::QueueEmpty, Some(at_ms));
     }
 }
 
@@ -97,7 +136,7 @@ impl Handler<Enqueue> for RobotActor {
             MoveCommand::Straight {
                 distance_m,
                 speed_mps,
-            } => self.send(&packets::StraightMovement {
+            } => self.send_frame(&packets::StraightMovement {
                 distance_m,
                 speed_mps,
                 move_id: id,
@@ -105,7 +144,7 @@ impl Handler<Enqueue> for RobotActor {
             MoveCommand::Rotate {
                 angle_deg,
                 speed_mps,
-            } => self.send(&packets::RotationMovement {
+            } => self.send_frame(&packets::RotationMovement {
                 angle_deg,
                 speed_mps,
                 move_id: id,
@@ -114,21 +153,25 @@ impl Handler<Enqueue> for RobotActor {
                 radius_m,
                 angle_deg,
                 speed_mps,
-            } => self.send(&packets::ArcMovement {
+            } => self.send_frame(&packets::ArcMovement {
                 radius_m,
                 angle_deg,
                 speed_mps,
                 move_id: id,
             }),
         };
-        if let Err(e) = sent {
-            return Box::pin(async move { Err(e) });
-        }
+        let frame = match sent {
+            Ok(frame) => frame,
+            Err(e) => return Box::pin(async move { Err(e) }),
+        };
         let (tx, rx) = oneshot::channel();
+        let now = Instant::now();
         self.moves.in_flight.insert(
             id,
             InFlight {
-                sent_at: Instant::now(),
+                sent_at: now,
+                last_sent: now,
+                frame,
                 tag: msg.tag,
                 reply: tx,
             },

@@ -44,12 +44,21 @@ wire_struct! {
 
 wire_struct! {
     /// Drop every queued move; the running one stops smoothly.
-    pub struct ClearQueue {}
+    pub struct ClearQueue {
+        /// Moves with this id or a later one (in the host's wrapping order) stay queued; 0 drops
+        /// them all. The host sets it to its next move's id, so a ClearQueue sent again after a
+        /// loss never drops a move queued after it.
+        pub keep_from: u16,
+    }
 }
 
 wire_struct! {
     /// Stop now: motors off, queue cleared, line following and teleop off.
-    pub struct Stop {}
+    pub struct Stop {
+        /// As in [`ClearQueue`]: moves with this id or a later one stay queued (and start, after
+        /// the stop); 0 drops them all.
+        pub keep_from: u16,
+    }
 }
 
 wire_struct! {

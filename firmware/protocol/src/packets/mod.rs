@@ -22,10 +22,10 @@ pub use commands::{
     RotationMovement, SetLed, Stop, StraightMovement, WheelSpeeds,
 };
 pub use events::{
-    Bump, LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, Reflex, RobotEncountered,
-    WatchdogStop,
+    Bump, Event, LineEvent, LoopOverrun, MoveFinished, Obstacle, QueueEmpty, Reflex,
+    RobotEncountered, WatchdogStop,
 };
-pub use session::{Hello, HelloRequest, Log, Nack, Ping, Pong};
+pub use session::{EventReplay, Hello, HelloRequest, Log, Nack, Ping, Pong};
 pub use settings_io::{
     SettingsData, SettingsRead, SettingsRestoreDefaults, SettingsSave, SettingsSaved,
     SettingsUpdate,
@@ -193,6 +193,8 @@ packets! {
     0x55 => Ping(Ping);
     /// Ask for a hello, host → robot.
     0x56 => HelloRequest(HelloRequest);
+    /// Ask for events again, host → robot.
+    0x57 => EventReplay(EventReplay);
 }
 
 #[cfg(test)]

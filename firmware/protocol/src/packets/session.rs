@@ -48,6 +48,15 @@ wire_struct! {
 }
 
 wire_struct! {
+    /// Host asks for its events again: every event the robot still holds (its last 32) whose
+    /// number is `from_seq` or later, in order, as they were first sent.
+    pub struct EventReplay {
+        /// The first event number wanted.
+        pub from_seq: u16,
+    }
+}
+
+wire_struct! {
     /// Round-trip probe from the host.
     pub struct Ping {
         /// Sequence number echoed in the pong.
