@@ -109,8 +109,8 @@ fn straight_move_reaches_cruise_and_ends_at_its_distance() {
 #[test]
 fn rotation_turns_the_requested_angle_in_place() {
     let mut r = robot();
-    r.send(rotate(90.0, 0.1, 7));
-    assert!(run_alive(&mut r, Duration::from_millis(3000), |p| finished(p, 7)).is_some());
+    r.send(rotate(90.0, 0.1, 1));
+    assert!(run_alive(&mut r, Duration::from_millis(3000), |p| finished(p, 1)).is_some());
     r.run(Duration::from_millis(200), |_, _| {});
     let pose = r.fw.board().pose;
     assert!(
@@ -125,8 +125,8 @@ fn rotation_turns_the_requested_angle_in_place() {
 fn square_walk_closes_on_itself() {
     let mut r = robot();
     for i in 0..4u16 {
-        r.send(straight(0.1, 0.2, 2 * i));
-        r.send(rotate(90.0, 0.2, 2 * i + 1));
+        r.send(straight(0.1, 0.2, 2 * i + 1));
+        r.send(rotate(90.0, 0.2, 2 * i + 2));
     }
     let mut finished_ids = Vec::new();
     let empty = run_alive(&mut r, Duration::from_millis(10_000), |p| {
@@ -136,7 +136,7 @@ fn square_walk_closes_on_itself() {
         matches!(p, AnyPacket::QueueEmpty(_))
     });
     assert!(empty.is_some(), "queue never emptied: {finished_ids:?}");
-    let expected: Vec<(u16, u8)> = (0..8).map(|i| (i, MoveOutcome::Completed as u8)).collect();
+    let expected: Vec<(u16, u8)> = (1..=8).map(|i| (i, MoveOutcome::Completed as u8)).collect();
     assert_eq!(finished_ids, expected);
     r.run(Duration::from_millis(200), |_, _| {});
     let p = r.fw.board().pose;
@@ -153,7 +153,7 @@ fn square_walk_closes_on_itself() {
 #[test]
 fn watchdog_stops_a_silent_link_at_its_timeout() {
     let mut r = robot();
-    r.send(straight(1.0, 0.2, 3));
+    r.send(straight(1.0, 0.2, 1));
     let sent = r.now;
     let mut stop_at = None;
     let mut outcome = None;
@@ -531,7 +531,7 @@ fn a_detour_of_turns_both_ways_ends_where_its_geometry_says() {
     ];
     let mut r = robot();
     for (id, (rot, v)) in plan.into_iter().enumerate() {
-        let id = id as u16;
+        let id = id as u16 + 1;
         if rot {
             r.send(rotate(v, 0.08, id));
         } else {

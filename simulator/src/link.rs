@@ -3,9 +3,11 @@
 //! bandwidth its robots share (defaults modelled on Bluetooth L2CAP: ~10 ms, no loss after
 //! retransmission, ~700 kbit/s for up to 7 robots).
 //!
-//! Loss is drawn per packet: on its own, or in bursts from a Gilbert–Elliott channel (a good state
-//! that loses nothing and a bad one that loses everything, one chain per link shared by both
-//! directions, as one radio's fading hits both) when the model's mean burst is above one packet.
+//! Loss is drawn per packet on its own, or, when the model gives fades a length, from a
+//! Gilbert–Elliott channel in time: the link alternates between good spells that lose nothing and
+//! fades that lose everything sent during them, both exponentially long, one channel per link
+//! shared by both directions (a fade hits one radio both ways). A fade is a spell of time, not a
+//! run of packets, so a link that sends little is not silenced for longer.
 //!
 //! Packets in one direction stay in order, as on L2CAP. A cut link drops everything in both
 //! directions until it is restored.
@@ -32,9 +34,9 @@ pub struct LinkModel {
     pub jitter_s: f64,
     /// Probability that a packet is lost, over the long run.
     pub loss: f64,
-    /// Mean number of packets in a run of losses: 1 draws each packet's loss on its own; above 1
-    /// a Gilbert–Elliott chain gives bursts of this mean length with the same long-run `loss`.
-    pub loss_burst: f64,
+    /// Mean length of a fade, seconds: 0 draws each packet's loss on its own; above 0 the link
+    /// fades for this long on average, a `loss` share of the time.
+    pub loss_burst_s: f64,
     /// Air bandwidth of one piconet, bits per second.
     pub bandwidth_bps: f64,
     /// Robots sharing one piconet's air time.
@@ -47,7 +49,7 @@ impl Default for LinkModel {
             latency_s: 0.010,
             jitter_s: 0.002,
             loss: 0.0,
-            loss_burst: 1.0,
+            loss_burst_s: 0.0,
             bandwidth_bps: 700_000.0,
             robots_per_piconet: 7,
         }
@@ -199,8 +201,10 @@ pub struct SimLink {
     up: bool,
     stats: LinkStats,
     rng: ChaCha8Rng,
-    /// The Gilbert–Elliott chain is in its bad state: the next packet is lost.
+    /// The Gilbert–Elliott channel is in a fade.
     fading: bool,
+    /// When the channel's current spell (fade or good) ends, ns; 0 before the first packet.
+    spell_ends_ns: u64,
 }
 
 impl SimLink {
@@ -218,6 +222,7 @@ impl SimLink {
             stats: LinkStats::default(),
             rng,
             fading: false,
+            spell_ends_ns: 0,
         }
     }
 
@@ -324,19 +329,31 @@ impl SimLink {
         self.to_host.first_tag()
     }
 
-    /// Whether the next packet is lost: a draw on its own, or a step of the Gilbert–Elliott chain
-    /// whose bad state lasts `loss_burst` packets on average and holds a `loss` share of them.
-    fn lose(&mut self, model: &LinkModel) -> bool {
-        if model.loss_burst <= 1.0 || model.loss >= 1.0 {
+    /// Whether a packet sent at `now_ns` is lost: a draw on its own, or whether the channel is
+    /// in a fade then (fades last `loss_burst_s` on average and fill a `loss` share of the time).
+    fn lose(&mut self, now_ns: u64, model: &LinkModel) -> bool {
+        if model.loss_burst_s <= 0.0 || model.loss >= 1.0 {
             return self.rng.gen::<f64>() < model.loss;
         }
-        let lost = self.fading;
-        // Stationary share of the bad state p / (p + r) = loss, with r = 1 / burst.
-        let recover = 1.0 / model.loss_burst;
-        let fade = model.loss * recover / (1.0 - model.loss);
-        let u = self.rng.gen::<f64>();
-        self.fading = if self.fading { u >= recover } else { u < fade };
-        lost
+        let fade_s = model.loss_burst_s;
+        let good_s = fade_s * (1.0 - model.loss) / model.loss;
+        if self.spell_ends_ns == 0 {
+            // The first packet finds the channel in its long-run state.
+            self.fading = self.rng.gen::<f64>() < model.loss;
+            self.spell_ends_ns = now_ns + self.spell_ns(if self.fading { fade_s } else { good_s });
+        }
+        while now_ns >= self.spell_ends_ns {
+            self.fading = !self.fading;
+            let mean = if self.fading { fade_s } else { good_s };
+            self.spell_ends_ns += self.spell_ns(mean).max(1);
+        }
+        self.fading
+    }
+
+    /// An exponentially distributed spell of mean `mean_s`, ns.
+    fn spell_ns(&mut self, mean_s: f64) -> u64 {
+        let u: f64 = self.rng.gen::<f64>();
+        (-(1.0 - u).ln() * mean_s * 1e9).min(1e15) as u64
     }
 
     fn schedule(
@@ -366,7 +383,7 @@ impl SimLink {
             }
             return None;
         }
-        if model.loss > 0.0 && self.lose(model) {
+        if model.loss > 0.0 && self.lose(now_ns, model) {
             self.stats.lost += 1;
             return None;
         }
@@ -406,45 +423,41 @@ mod tests {
     }
 
     #[test]
-    fn bursty_loss_keeps_its_long_run_rate_and_comes_in_runs_of_its_mean_length() {
+    fn fades_keep_their_long_run_share_and_last_their_mean_whatever_the_packet_rate() {
         let model = LinkModel {
             loss: 0.05,
-            loss_burst: 4.0,
+            loss_burst_s: 0.040,
             ..LinkModel::default()
         };
-        let mut l = link();
-        let n = 200_000;
-        let (mut lost, mut runs, mut previous) = (0u32, 0u32, false);
-        for _ in 0..n {
-            let now = l.lose(&model);
-            lost += u32::from(now);
-            runs += u32::from(now && !previous);
-            previous = now;
+        // One packet a millisecond, then one every 50 ms: a fade is time, not packets.
+        for every_ms in [1u64, 50] {
+            let mut l = link();
+            let (mut lost, mut sent, mut runs, mut previous) = (0u32, 0u32, 0u32, false);
+            for k in 0..(2_000_000 / every_ms) {
+                let now = l.lose(k * every_ms * 1_000_000, &model);
+                sent += 1;
+                lost += u32::from(now);
+                runs += u32::from(now && !previous);
+                previous = now;
+            }
+            let rate = f64::from(lost) / f64::from(sent);
+            let mean_run_ms = f64::from(lost) / f64::from(runs) * every_ms as f64;
+            assert!(
+                (rate - 0.05).abs() < 0.01,
+                "every {every_ms} ms: loss {rate}"
+            );
+            if every_ms == 1 {
+                assert!(
+                    (mean_run_ms - 40.0).abs() < 5.0,
+                    "fades of {mean_run_ms:.1} ms"
+                );
+            } else {
+                // A fade outlasts the next 50 ms with probability e^(-50/40): runs of about
+                // 1.4 packets, where a chain counted in packets would silence this link for 4.
+                let packets = f64::from(lost) / f64::from(runs);
+                assert!(packets < 1.6, "runs of {packets:.2} packets");
+            }
         }
-        let rate = f64::from(lost) / f64::from(n);
-        let mean_run = f64::from(lost) / f64::from(runs);
-        assert!((rate - 0.05).abs() < 0.005, "long-run loss {rate}");
-        assert!(
-            (mean_run - 4.0).abs() < 0.3,
-            "mean burst {mean_run} packets"
-        );
-        // Drawn on its own, a loss of 5 % rarely comes twice in a row.
-        let single = LinkModel {
-            loss: 0.05,
-            ..LinkModel::default()
-        };
-        let (mut lost, mut runs, mut previous) = (0u32, 0u32, false);
-        for _ in 0..n {
-            let now = l.lose(&single);
-            lost += u32::from(now);
-            runs += u32::from(now && !previous);
-            previous = now;
-        }
-        let mean_run = f64::from(lost) / f64::from(runs);
-        assert!(
-            mean_run < 1.1,
-            "independent losses ran {mean_run} packets on average"
-        );
     }
 
     #[test]

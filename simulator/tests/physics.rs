@@ -45,7 +45,7 @@ fn square_walk(physics_every: u32) {
             StraightMovement {
                 distance_m: 0.1,
                 speed_mps: 0.2,
-                move_id: 2 * i,
+                move_id: 2 * i + 1,
             },
         );
         send(
@@ -54,7 +54,7 @@ fn square_walk(physics_every: u32) {
             RotationMovement {
                 angle_deg: 90.0,
                 speed_mps: 0.2,
-                move_id: 2 * i + 1,
+                move_id: 2 * i + 2,
             },
         );
     }

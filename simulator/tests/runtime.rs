@@ -31,7 +31,7 @@ async fn a_move_over_an_async_link_end_moves_the_body() {
     end.send(encode(StraightMovement {
         distance_m: 0.1,
         speed_mps: 0.2,
-        move_id: 5,
+        move_id: 1,
     }));
     let t0 = tokio::time::Instant::now();
     let finished = tokio::time::timeout(Duration::from_secs(5), async {
@@ -41,7 +41,7 @@ async fn a_move_over_an_async_link_end_moves_the_body() {
                 _ = pings.tick() => { end.send(encode(Ping { seq: 0, host_time_us: 0 })); }
                 p = end.recv() => {
                     if let Ok(AnyPacket::MoveFinished(m)) = protocol::decode(&p.unwrap()) {
-                        if { m.move_id } == 5 { break; }
+                        if { m.move_id } == 1 { break; }
                     }
                 }
             }

@@ -209,13 +209,13 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
     link.send(StraightMovement {
         distance_m,
         speed_mps: 0.2,
-        move_id: 7,
+        move_id: 1,
     })
     .unwrap();
     let mut seq = 100;
     let mut last_state = start;
     let outcome = link
-        .wait_for("move 7 finished", WAIT, |tx, p| {
+        .wait_for("move 1 finished", WAIT, |tx, p| {
             match p {
                 // Keep the watchdog fed at the robot's pace, whatever the wall clock does.
                 AnyPacket::State(s) => {
@@ -226,7 +226,7 @@ fn robot_in_qemu_speaks_the_protocol_moves_and_stops_on_silence() {
                         host_time_us: 0,
                     });
                 }
-                AnyPacket::MoveFinished(m) if m.move_id == 7 => return Some(m.outcome),
+                AnyPacket::MoveFinished(m) if m.move_id == 1 => return Some(m.outcome),
                 AnyPacket::WatchdogStop(_) => panic!("watchdog stopped a fed robot"),
                 AnyPacket::Nack(n) => panic!("move refused: {:?}", { n.reason }),
                 _ => {}

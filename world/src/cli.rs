@@ -264,7 +264,7 @@ mod tests {
     fn a_link_profile_is_a_name_or_a_file_and_a_bad_one_is_named() {
         let b = super::parse_link_profile("bluetooth").unwrap();
         assert_eq!(b.model.loss, 0.01);
-        assert_eq!(b.model.loss_burst, 4.0);
+        assert_eq!(b.model.loss_burst_ms, 20.0);
         let e = super::parse_link_profile("bluetoth").unwrap_err();
         assert!(e.contains("ideal, l2cap, bluetooth, poor"), "{e}");
         let dir = std::env::temp_dir().join(format!("link-profile-{}", std::process::id()));
@@ -274,11 +274,14 @@ mod tests {
         let m = super::parse_link_profile(good.to_str().unwrap())
             .unwrap()
             .model;
-        assert_eq!((m.latency_ms, m.loss, m.loss_burst), (40.0, 0.02, 4.0));
+        assert_eq!((m.latency_ms, m.loss, m.loss_burst_ms), (40.0, 0.02, 50.0));
         let bad = dir.join("bad.toml");
-        std::fs::write(&bad, "[link]\nlatency_ms = 5\nloss_burst = 0.5\n").unwrap();
+        std::fs::write(&bad, "[link]\nlatency_ms = 5\nloss_burst_ms = -1\n").unwrap();
         let e = super::parse_link_profile(bad.to_str().unwrap()).unwrap_err();
-        assert!(e.contains("bad.toml:3:") && e.contains("loss_burst"), "{e}");
+        assert!(
+            e.contains("bad.toml:3:") && e.contains("loss_burst_ms"),
+            "{e}"
+        );
         let unknown = dir.join("unknown.toml");
         std::fs::write(&unknown, "[link]\nprofile = \"wifi\"\n").unwrap();
         let e = super::parse_link_profile(unknown.to_str().unwrap()).unwrap_err();

@@ -42,7 +42,7 @@
 //! latency_ms = 10
 //! jitter_ms = 2
 //! loss = 0
-//! loss_burst = 1                 # mean packets per run of losses (Gilbert–Elliott above 1)
+//! loss_burst_ms = 0              # mean fade; 0: each packet's loss on its own
 //! bandwidth_kbps = 700
 //! robots_per_piconet = 7
 //! [light]
@@ -243,9 +243,9 @@ pub struct LinkFile {
     /// Packet loss probability; default 0.
     #[serde(default)]
     pub loss: Option<Spanned<f64>>,
-    /// Mean length of a run of lost packets; default 1 (each loss on its own).
+    /// Mean length of a fade in ms; default 0 (each packet's loss on its own).
     #[serde(default)]
-    pub loss_burst: Option<Spanned<f64>>,
+    pub loss_burst_ms: Option<Spanned<f64>>,
     /// Bandwidth per piconet in kbit/s; default 700.
     #[serde(default)]
     pub bandwidth_kbps: Option<Spanned<f64>>,
@@ -270,7 +270,7 @@ impl LinkFile {
             latency_ms: value(&self.latency_ms, d.latency_ms),
             jitter_ms: value(&self.jitter_ms, d.jitter_ms),
             loss: value(&self.loss, d.loss),
-            loss_burst: value(&self.loss_burst, d.loss_burst),
+            loss_burst_ms: value(&self.loss_burst_ms, d.loss_burst_ms),
             bandwidth_kbps: value(&self.bandwidth_kbps, d.bandwidth_kbps),
             robots_per_piconet: value(&self.robots_per_piconet, d.robots_per_piconet),
         })
@@ -316,7 +316,7 @@ impl LinkFile {
             "latency_ms" => l.latency_ms.as_ref()?.span(),
             "jitter_ms" => l.jitter_ms.as_ref()?.span(),
             "loss" => l.loss.as_ref()?.span(),
-            "loss_burst" => l.loss_burst.as_ref()?.span(),
+            "loss_burst_ms" => l.loss_burst_ms.as_ref()?.span(),
             "bandwidth_kbps" => l.bandwidth_kbps.as_ref()?.span(),
             "robots_per_piconet" => l.robots_per_piconet.as_ref()?.span(),
             _ => return None,

@@ -115,10 +115,10 @@ pub struct RadioModel {
     pub jitter_ms: f64,
     /// Probability (0..=1) that a packet is lost, over the long run.
     pub loss: f64,
-    /// Mean length of a run of lost packets: 1 draws each loss on its own; above 1 losses come
-    /// in bursts (a Gilbert–Elliott channel whose bad state loses every packet) with the same
-    /// long-run `loss`.
-    pub loss_burst: f64,
+    /// Mean length of a fade, milliseconds: 0 draws each packet's loss on its own; above 0 the
+    /// link fades for this long on average (a Gilbert–Elliott channel in time whose bad state
+    /// loses every packet), a `loss` share of the time.
+    pub loss_burst_ms: f64,
     /// Usable bandwidth of one piconet in kilobits per second.
     pub bandwidth_kbps: f64,
     /// Robots one radio (piconet master) serves; more robots need more radios.
@@ -131,7 +131,7 @@ impl Default for RadioModel {
             latency_ms: 10.0,
             jitter_ms: 2.0,
             loss: 0.0,
-            loss_burst: 1.0,
+            loss_burst_ms: 0.0,
             bandwidth_kbps: 700.0,
             robots_per_piconet: 7,
         }
@@ -147,7 +147,7 @@ pub const LINK_PROFILES: [(&str, &str, RadioModel); 4] = [
             latency_ms: 0.0,
             jitter_ms: 0.0,
             loss: 0.0,
-            loss_burst: 1.0,
+            loss_burst_ms: 0.0,
             bandwidth_kbps: 1.0e6,
             robots_per_piconet: 7,
         },
@@ -159,31 +159,31 @@ pub const LINK_PROFILES: [(&str, &str, RadioModel); 4] = [
             latency_ms: 10.0,
             jitter_ms: 2.0,
             loss: 0.0,
-            loss_burst: 1.0,
+            loss_burst_ms: 0.0,
             bandwidth_kbps: 700.0,
             robots_per_piconet: 7,
         },
     ),
     (
         "bluetooth",
-        "30 ms ± 15 ms, 700 kbit/s per piconet of 7, 1 % loss in bursts of 4 packets on average",
+        "30 ms ± 15 ms, 700 kbit/s per piconet of 7, 1 % loss in fades of 20 ms on average",
         RadioModel {
             latency_ms: 15.0,
             jitter_ms: 30.0,
             loss: 0.01,
-            loss_burst: 4.0,
+            loss_burst_ms: 20.0,
             bandwidth_kbps: 700.0,
             robots_per_piconet: 7,
         },
     ),
     (
         "poor",
-        "80 ms ± 40 ms, 700 kbit/s per piconet of 7, 5 % loss in bursts of 4 packets on average",
+        "80 ms ± 40 ms, 700 kbit/s per piconet of 7, 5 % loss in fades of 50 ms on average",
         RadioModel {
             latency_ms: 40.0,
             jitter_ms: 80.0,
             loss: 0.05,
-            loss_burst: 4.0,
+            loss_burst_ms: 50.0,
             bandwidth_kbps: 700.0,
             robots_per_piconet: 7,
         },
@@ -226,10 +226,10 @@ impl RadioModel {
             "a probability in 0..=1",
         )?;
         require(
-            l.loss_burst.is_finite() && l.loss_burst >= 1.0,
-            Place::Link("loss_burst"),
-            l.loss_burst,
-            "a mean burst length of 1 packet or more",
+            non_negative(l.loss_burst_ms),
+            Place::Link("loss_burst_ms"),
+            l.loss_burst_ms,
+            "a mean fade of 0 ms or more",
         )?;
         require(
             positive(l.bandwidth_kbps),

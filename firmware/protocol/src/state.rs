@@ -112,8 +112,8 @@ wire_struct! {
         pub active_move: u16,
         /// Distance done in the running move, metres.
         pub progress_m: f32,
-        /// Id of the newest move accepted since the last `Hello` (0 = none): a move with this id
-        /// or an earlier one is a copy sent again and is ignored.
+        /// Id of the newest move taken since the last `Hello` (0 = none): the robot takes only the
+        /// move after it (1 after a hello), so a copy or a move after a lost one is ignored.
         pub last_move_id: u16,
     }
 }

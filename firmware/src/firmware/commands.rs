@@ -84,7 +84,7 @@ impl<B: Board> Firmware<B> {
     /// Moves numbered before `keep_from` that never arrived are void: each is reported cleared,
     /// so the host stops waiting for it, and `keep_from` is the next move taken.
     fn skip_moves_before(&mut self, keep_from: u16) {
-        if keep_from == 0 || self.last_move_id == 0 {
+        if keep_from == 0 {
             return;
         }
         // At most a queue's worth of moves can be outstanding; a longer gap is a stale request.
@@ -235,10 +235,10 @@ impl<B: Board> Firmware<B> {
     }
 
     fn enqueue(&mut self, t: PacketType, mv: Move) {
-        // Moves run in the order the host numbered them: a copy sent again (an id already taken)
-        // is ignored, and so is a move after a gap (one before it was lost on the way: the host
-        // sends the gap again, then this one).
-        if self.last_move_id != 0 && mv.id != next_move_id(self.last_move_id) {
+        // Moves run in the order the host numbered them, from 1 after each hello: a copy sent
+        // again (an id already taken) is ignored, and so is a move after a gap (one before it
+        // was lost on the way: the host sends the gap again, then this one).
+        if mv.id != next_move_id(self.last_move_id) {
             return;
         }
         self.last_move_id = mv.id;

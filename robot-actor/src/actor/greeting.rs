@@ -42,6 +42,7 @@ impl RobotActor {
             return;
         }
         self.greeting.greeted = true;
+        self.moves.greeted();
         let r = self.config.reflector;
         let _ = self.send(&packets::ReflectorConfig {
             mode: r.mode as u8,

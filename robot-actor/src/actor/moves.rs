@@ -46,6 +46,14 @@ impl Moves {
         }
     }
 
+    /// A robot greeted on a new link numbers its moves from 1 again; so does the host, once
+    /// nothing from the old link is in flight (a lost link failed it all).
+    pub(super) fn greeted(&mut self) {
+        if self.in_flight.is_empty() {
+            self.next_id = 1;
+        }
+    }
+
     /// Moves waiting for their finish event.
     pub(super) fn pending(&self) -> usize {
         self.in_flight.len()

@@ -78,7 +78,7 @@ impl Simulation {
             latency_s: world.link.latency_ms * 1e-3,
             jitter_s: world.link.jitter_ms * 1e-3,
             loss: world.link.loss,
-            loss_burst: world.link.loss_burst,
+            loss_burst_s: world.link.loss_burst_ms * 1e-3,
             bandwidth_bps: world.link.bandwidth_kbps * 1e3,
             robots_per_piconet: per,
         };
