@@ -34,6 +34,17 @@ fn finished(p: &AnyPacket, id: u16) -> bool {
     matches!(p, AnyPacket::MoveFinished(m) if { m.move_id } == id)
 }
 
+/// The moves the robot reports finished in what it has sent so far, with their outcomes.
+fn finished_outcomes(r: &mut MockRobot) -> Vec<(u16, u8)> {
+    r.drain()
+        .into_iter()
+        .filter_map(|p| match p {
+            AnyPacket::MoveFinished(m) => Some((m.move_id, m.outcome)),
+            _ => None,
+        })
+        .collect()
+}
+
 fn keep_alive(r: &mut MockRobot) {
     r.send(Ping {
         seq: 0,
@@ -377,14 +388,7 @@ fn stop_clears_the_queue_and_halts_the_motors() {
     r.run(Duration::from_millis(100), |_, _| {});
     assert_ne!(r.fw.board().pwm, (0, 0));
     r.send(Stop { keep_from: 0 });
-    let outcomes: Vec<(u16, u8)> = r
-        .drain()
-        .into_iter()
-        .filter_map(|p| match p {
-            AnyPacket::MoveFinished(m) => Some((m.move_id, m.outcome)),
-            _ => None,
-        })
-        .collect();
+    let outcomes = finished_outcomes(&mut r);
     let stopped = MoveOutcome::Stopped as u8;
     assert_eq!(outcomes, vec![(1, stopped), (2, stopped)]);
     assert_eq!(r.fw.board().pwm, (0, 0));
@@ -408,14 +412,7 @@ fn moves_sent_again_run_once_in_order_and_a_stop_keeps_what_came_after_it() {
     r.send(Stop { keep_from: 6 });
     r.send(straight(0.1, 0.2, 6));
     r.send(Stop { keep_from: 6 });
-    let outcomes: Vec<(u16, u8)> = r
-        .drain()
-        .into_iter()
-        .filter_map(|p| match p {
-            AnyPacket::MoveFinished(m) => Some((m.move_id, m.outcome)),
-            _ => None,
-        })
-        .collect();
+    let outcomes = finished_outcomes(&mut r);
     let (stopped, cleared) = (MoveOutcome::Stopped as u8, MoveOutcome::Cleared as u8);
     assert_eq!(
         outcomes,

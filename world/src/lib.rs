@@ -126,15 +126,9 @@ pub struct RadioModel {
 }
 
 impl Default for RadioModel {
+    /// The `l2cap` profile.
     fn default() -> Self {
-        RadioModel {
-            latency_ms: 10.0,
-            jitter_ms: 2.0,
-            loss: 0.0,
-            loss_burst_ms: 0.0,
-            bandwidth_kbps: 700.0,
-            robots_per_piconet: 7,
-        }
+        LINK_PROFILES[1].2
     }
 }
 

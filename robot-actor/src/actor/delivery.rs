@@ -125,11 +125,7 @@ impl Delivery {
             return true;
         };
         if after(seq, newest) {
-            let mut s = newest.wrapping_add(1).max(1);
-            while s != seq {
-                self.missing.insert(s, None);
-                s = s.wrapping_add(1).max(1);
-            }
+            self.skipped_before(newest, seq);
             self.newest = Some(seq);
             return true;
         }
@@ -138,6 +134,15 @@ impl Delivery {
             return true;
         }
         false
+    }
+
+    /// Notes every number after `newest` and before `seq` as missing.
+    fn skipped_before(&mut self, newest: u16, seq: u16) {
+        let mut s = newest.wrapping_add(1).max(1);
+        while s != seq {
+            self.missing.insert(s, None);
+            s = s.wrapping_add(1).max(1);
+        }
     }
 
     /// A stop (`stop`) or clear sent with `keep_from`, as `frame`.
@@ -182,14 +187,9 @@ impl Delivery {
         if sent != 0 {
             match self.newest {
                 Some(newest) if after(sent, newest) => {
-                    let mut s = newest.wrapping_add(1).max(1);
-                    loop {
-                        self.missing.insert(s, None);
-                        if s == sent {
-                            break;
-                        }
-                        s = s.wrapping_add(1).max(1);
-                    }
+                    // `sent` itself came before this state and was lost too.
+                    self.skipped_before(newest, sent);
+                    self.missing.insert(sent, None);
                     self.newest = Some(sent);
                 }
                 None => self.newest = Some(sent),
