@@ -133,6 +133,37 @@ fn cooperative_push_clears_the_track_for_seeds_1_to_10() {
 }
 
 #[test]
+fn cooperative_push_backs_onto_the_tape_over_links_slower_than_its_reports() {
+    // 20 ms each way, steady: a pusher's crossing of the tape is reported before the state that
+    // shows its sensor there, and a route along the tape planned on the report alone started
+    // from the model's pose 50 mm beyond the tape, beside the other pusher (held in every run).
+    let slow = world::cli::LinkProfileArg {
+        name: "20 ms".into(),
+        model: world::RadioModel {
+            latency_ms: 20.0,
+            jitter_ms: 0.0,
+            ..world::RadioModel::profile("ideal").unwrap()
+        },
+    };
+    for seed in 1..=3 {
+        let p = Plan {
+            link: Some(slow.clone()),
+            ..plan("cooperative_push", None, None, seed, &[])
+        };
+        let r = coordinator::run_blocking(p, &Registry::builtin()).expect("experiment runs");
+        assert!(r.success(), "seed {seed}: {r}");
+        assert_eq!(r.robot_collisions(), Some(0), "seed {seed}: {r}");
+        assert!(
+            the_box(&r).clear_of_tape_m > world::robot::LENGTH_M,
+            "seed {seed}: {r}"
+        );
+        for robot in &r.robots {
+            assert!(robot.off_tape_m.unwrap() < 0.008, "seed {seed}: {r}");
+        }
+    }
+}
+
+#[test]
 fn one_robot_alone_never_clears_the_box() {
     let r = run("cooperative_push", None, Some(1), 1, &[]);
     assert!(!r.verdict.success, "{r}");

@@ -76,6 +76,9 @@ impl Sighting {
 pub struct Proximity {
     slot: u8,
     sightings: Vec<Sighting, MAX_SIGHTINGS>,
+    /// The weakest power of our own light seen back on each side (front, rear; 0 none) in the
+    /// transmit cycle under way, and in the one before it.
+    reflections: [[u8; 2]; 2],
     last_robot: Option<(u16, Side, u8)>,
     encounters: u16,
 }
@@ -92,6 +95,7 @@ impl Proximity {
         Self {
             slot: 0,
             sightings: Vec::new(),
+            reflections: [[0; 2]; 2],
             last_robot: None,
             encounters: 0,
         }
@@ -115,6 +119,9 @@ impl Proximity {
         // The modulo keeps the cycle valid when the host shrinks the counts mid-cycle.
         let slot = self.slot % (leds * powers);
         self.slot = (slot + 1) % (leds * powers);
+        if slot == 0 {
+            self.reflections = [[0; 2], self.reflections[0]];
+        }
         let led = slot / powers;
         let power = slot % powers + 1;
         let frame = IrFrame {
@@ -139,6 +146,12 @@ impl Proximity {
             led: frame.led,
         };
         let obstacle = frame.robot_id == own_id;
+        if obstacle {
+            let seen = &mut self.reflections[0][side as usize];
+            if *seen == 0 || frame.power < *seen {
+                *seen = frame.power;
+            }
+        }
         if let Some(s) = self
             .sightings
             .iter_mut()
@@ -238,6 +251,18 @@ impl Proximity {
             range_mm: range(reading.power, settings),
             message,
         }))
+    }
+
+    /// The weakest power at which our own light came back on `side` within the last whole
+    /// transmit cycle (0: none): what stands there now. [`Proximity::state`]'s obstacles are
+    /// remembered for the event reports' two periods, a second by default, which after a turn
+    /// away still show what stood ahead before it.
+    pub fn reflection(&self, side: Side) -> u8 {
+        let [now, before] = self.reflections;
+        match (now[side as usize], before[side as usize]) {
+            (0, x) | (x, 0) => x,
+            (a, b) => a.min(b),
+        }
     }
 
     /// Summary for RobotState.proximity (front/rear obstacle = weakest power of a current
@@ -501,6 +526,39 @@ mod tests {
         assert_eq!((st.front_obstacle, st.rear_obstacle), (0, 2));
         assert_eq!({ st.last_robot_id }, 0);
         assert_eq!({ st.encounters }, 0);
+    }
+
+    #[test]
+    fn a_reflection_is_current_for_one_whole_transmit_cycle_not_the_reports_two_periods() {
+        let s = settings();
+        let cycle = usize::from(s.led_count) * usize::from(s.power_levels);
+        let mut p = Proximity::new();
+        let transmit = |p: &mut Proximity, n: usize| {
+            for _ in 0..n {
+                p.next_transmission(ME, 0, &s);
+            }
+        };
+        transmit(&mut p, 3);
+        p.on_frame(ms(10), Side::Front, frame(ME, 1, 2), ME);
+        p.on_frame(ms(11), Side::Front, frame(ME, 0, 1), ME);
+        p.on_frame(ms(12), Side::Front, frame(7, 0, 1), ME);
+        assert!(p.poll_event(ms(12), &s).is_some());
+        assert_eq!(
+            p.reflection(Side::Front),
+            1,
+            "the weakest of our own frames"
+        );
+        assert_eq!(p.reflection(Side::Rear), 0);
+        // The rest of this cycle and the whole next one: still what stands there.
+        transmit(&mut p, cycle - 3 + cycle);
+        assert_eq!(p.reflection(Side::Front), 1);
+        // Two cycles on with nothing seen: gone, while the reports still remember it.
+        transmit(&mut p, 1);
+        assert_eq!(p.reflection(Side::Front), 0);
+        assert_eq!({ p.state().front_obstacle }, 1);
+        // Another robot's light is no reflection.
+        p.on_frame(ms(300), Side::Front, frame(7, 0, 1), ME);
+        assert_eq!(p.reflection(Side::Front), 0);
     }
 
     #[test]

@@ -650,6 +650,29 @@ fn the_reflex_stops_a_drive_into_something_close_and_lets_the_robot_turn_away() 
 }
 
 #[test]
+fn the_reflex_forgets_what_the_robot_has_turned_away_from() {
+    // A robot stopped by the box turns away from it and drives on: the reports remember the
+    // box for a second, the receivers stop seeing it within a transmit cycle of the turn.
+    let mut r = robot();
+    reflection(&mut r, Side::Front, 1);
+    r.send(rotate(-90.0, 0.08, 1));
+    r.send(straight(0.03, 0.08, 2));
+    let mut done = Vec::new();
+    let mut reflexes = 0;
+    run_alive(&mut r, Duration::from_millis(3000), |p| {
+        match p {
+            AnyPacket::MoveFinished(m) => done.push((m.move_id, m.outcome)),
+            AnyPacket::Reflex(_) => reflexes += 1,
+            _ => {}
+        }
+        done.len() == 2
+    });
+    let c = MoveOutcome::Completed as u8;
+    assert_eq!(done, vec![(1, c), (2, c)], "the drive away is not stopped");
+    assert_eq!(reflexes, 0);
+}
+
+#[test]
 fn a_robot_whose_reflex_is_off_closes_in_on_what_it_sees() {
     let mut r = robot();
     let (offset, _) = Settings::field("reflex.power_level").expect("a setting");

@@ -93,6 +93,13 @@ const BACK_OVERSHOOT: f64 = 0.002;
 /// clear, the sensor stands well beyond the tape, and over a wall-clock link a report of the
 /// push's own crossing can arrive late, with the robot still beside the other pusher.
 const MIN_BACK_M: f64 = 0.02;
+/// A robot stopped on the tape waits for the model to put its line sensor this close to the tape
+/// before its route along it is planned, and this long at most.
+const ALIGN_AGREE_M: f64 = 0.008;
+const ALIGN_WAIT: Duration = Duration::from_millis(1000);
+/// A held route along the tape is tried again this much later, this many times.
+const ALIGN_RETRY: Duration = Duration::from_millis(500);
+const ALIGN_HOLDS: u32 = 10;
 /// Line sensor ahead of the robot's centre, metres.
 const SENSOR_AHEAD: f64 = world::robot::LINE_SENSOR_AHEAD_M;
 /// Following speed with an unknown obstacle close ahead.
@@ -177,6 +184,21 @@ struct Bot {
     seeking: bool,
     /// Back on the tape after the push, facing along it.
     rejoined: bool,
+    /// Stopped on the tape, waiting to drive its centre onto it and turn along it.
+    aligning: Option<Align>,
+    /// How often that was held so far.
+    align_holds: u32,
+}
+
+/// A robot stopped where its sensor crossed the tape, waiting for its route along it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Align {
+    /// Since when it waits for the model to agree.
+    since: Duration,
+    /// Not sent before this (after a hold).
+    not_before: Duration,
+    /// Holds so far.
+    holds: u32,
 }
 
 /// The cooperative pushing behaviour.

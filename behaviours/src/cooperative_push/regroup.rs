@@ -55,6 +55,7 @@ impl CooperativePush {
         self.retry_at = None;
         for b in self.bots.values_mut() {
             b.backing = None;
+            b.aligning = None;
             b.crossed_tape = false;
             b.seeking = false;
         }

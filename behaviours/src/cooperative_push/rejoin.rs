@@ -45,6 +45,7 @@ impl CooperativePush {
         self.retry_at = None;
         for b in self.bots.values_mut() {
             b.backing = None;
+            b.aligning = None;
             b.seeking = false;
         }
         self.enter(Phase::Rejoin, world);
@@ -75,11 +76,12 @@ impl CooperativePush {
                 (Vector2::new(v.pose.x, v.pose.y) - site.centre.coords).dot(&site.along)
             })
         };
-        if ids
-            .iter()
-            .any(|id| self.bots.get(id).is_some_and(|b| b.backing.is_some()))
-        {
-            return Vec::new();
+        if ids.iter().any(|id| {
+            self.bots
+                .get(id)
+                .is_some_and(|b| b.backing.is_some() || b.aligning.is_some())
+        }) {
+            return self.align_on_tape(world);
         }
         // Nobody drives beside a robot being searched for: the safety check sweeps a drive onto
         // the tape only at its start, and one backing beside a lost pusher touched it. Only a
@@ -217,6 +219,7 @@ impl CooperativePush {
         if let Some(b) = self.bots.get_mut(&id) {
             b.rejoined = false;
             b.backing = None;
+            b.aligning = None;
         }
         self.retry_at = Some(world.time + Duration::from_millis(1000));
     }

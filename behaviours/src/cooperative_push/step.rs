@@ -27,7 +27,8 @@ impl CooperativePush {
             }
         }
         let next = match self.phase {
-            Phase::Approach | Phase::FinderRejoins | Phase::HelperRejoins => Ok(Vec::new()),
+            Phase::Approach => Ok(Vec::new()),
+            Phase::FinderRejoins | Phase::HelperRejoins => Ok(self.align_on_tape(world)),
             Phase::Gather => self.gather(world, team),
             Phase::FinderToSlot => Ok(self.finder_to_slot(world, team)),
             Phase::HelperToSlot => Ok(self.helper_to_slot(world, team)),
@@ -519,6 +520,14 @@ impl Behaviour for CooperativePush {
         }
         if self.phase == Phase::Regroup {
             self.route_held(robot, world);
+            return stop;
+        }
+        // The centre onto the tape and the turn along it, after the push: the robot stands where
+        // its sensor found the tape, and the same route is planned again from where the model
+        // has it a little later.
+        if matches!(self.phase, Phase::FinderRejoins | Phase::HelperRejoins)
+            && self.align_held(robot, world)
+        {
             return stop;
         }
         let mut out = stop;

@@ -70,11 +70,18 @@ impl<B: Board> Firmware<B> {
             Drive::MotorPower { .. } => pwm.0 + pwm.1,
             _ => targets.0 + targets.1,
         };
-        let seen = self.proximity.state();
+        // What the receivers see now, not the reports' memory of the last second: a robot that
+        // has just turned away from the box would otherwise stop at the box it no longer faces.
         let (side, power) = if ahead > REFLEX_DRIVE {
-            (packets::Side::Front, seen.front_obstacle)
+            (
+                packets::Side::Front,
+                self.proximity.reflection(packets::Side::Front),
+            )
         } else if ahead < -REFLEX_DRIVE {
-            (packets::Side::Rear, seen.rear_obstacle)
+            (
+                packets::Side::Rear,
+                self.proximity.reflection(packets::Side::Rear),
+            )
         } else {
             return false;
         };

@@ -114,7 +114,9 @@ wire_struct! {
 
 wire_struct! {
     /// The proximity reflex stopped the robot: it drove towards a surface close enough to return
-    /// its own light at the reflex's power level (see `reflex.power_level`).
+    /// its own light at the reflex's power level (see `reflex.power_level`) within the last
+    /// whole IR transmit cycle (about 0.1 s), not the state's obstacle summary, which remembers
+    /// for two report periods.
     pub struct Reflex {
         /// When it stopped, the robot's uptime in milliseconds.
         pub at_ms: u32,
