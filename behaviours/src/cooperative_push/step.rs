@@ -111,9 +111,12 @@ impl CooperativePush {
             *seen = now;
             // A regroup stops robots itself; a rejoin's own stops interrupt moves too, but its
             // reflexes are on again, and one that stops a robot is a new disturbance.
+            // A route along the tape stopped because a move of it was held is tried again.
+            let realigning = self.bots.get(&id).is_some_and(|b| b.aligning.is_some());
             if self.phase == Phase::Regroup
                 || !(interrupted || blocked)
                 || (self.phase == Phase::Rejoin && !blocked)
+                || (realigning && !blocked)
             {
                 continue;
             }
@@ -410,8 +413,12 @@ impl Behaviour for CooperativePush {
             Event::Obstacle(o) if o.side == Side::Front && o.is_close() => {
                 self.found_box(robot, world)
             }
-            // Finishing a rejoin hands the robot back to the tape.
-            Event::MoveFinished { .. } if team.idle(robot) => {
+            // Finishing a rejoin hands the robot back to the tape; a route along it that was
+            // stopped for a hold is still to come.
+            Event::MoveFinished { .. }
+                if team.idle(robot)
+                    && self.bots.get(&robot).is_none_or(|b| b.aligning.is_none()) =>
+            {
                 let follow = vec![Intent::FollowLine {
                     robot,
                     speed: Some(self.speed),
