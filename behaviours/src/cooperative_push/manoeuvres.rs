@@ -252,11 +252,30 @@ impl CooperativePush {
         // move reaches the robot first on the same link. One command per robot in the same
         // reply: the supervisor sends them back to back.
         let mut out = self.reflexes(0);
+        let push_heading = self.site.map(|s| Site::heading(s.push));
+        let length = LANE_GAP + self.push_m;
         for id in ids {
-            if let Some(view) = world.robot(id) {
-                let route = Manoeuvre::from(view.pose, PUSH_MPS).straight(LANE_GAP + self.push_m);
-                out.extend(self.send(id, route));
-            }
+            let Some(view) = world.robot(id) else {
+                continue;
+            };
+            // A pusher facing a degree or two off the push direction drives a gentle arc that
+            // ends along it: two pushers 16 mm apart that each face a degree towards the other
+            // close in by 8 mm over a straight push, which the safety check rightly holds; the
+            // arc halves that. A turn on the spot first (tried) changed how the box gave way.
+            let off = push_heading.map_or(0.0, |h| wrap_angle(h - view.pose.theta));
+            let command = if (ARC_MIN_RAD..ARC_MAX_RAD).contains(&off.abs()) {
+                MoveCommand::Arc {
+                    radius_m: (length / off.abs()) as f32,
+                    angle_deg: off.to_degrees() as f32,
+                    speed_mps: PUSH_MPS,
+                }
+            } else {
+                MoveCommand::Straight {
+                    distance_m: length as f32,
+                    speed_mps: PUSH_MPS,
+                }
+            };
+            out.extend(Intent::moves(id, [command], self.phase as u32));
         }
         out
     }

@@ -29,9 +29,10 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use behaviour_api::Pose;
+use behaviour_api::{MoveCommand, Pose};
 use nalgebra::{Point2, Vector2};
 use protocol::packets::Side;
+use world::wrap_angle;
 
 use behaviour_api::event::Event;
 use behaviour_api::evidence::{Odometer, EVIDENCE_SHARE};
@@ -93,6 +94,10 @@ const BACK_OVERSHOOT: f64 = 0.002;
 /// clear, the sensor stands well beyond the tape, and over a wall-clock link a report of the
 /// push's own crossing can arrive late, with the robot still beside the other pusher.
 const MIN_BACK_M: f64 = 0.02;
+/// A pusher facing the push direction this far off, and no farther, pushes along an arc that ends
+/// facing along it (see `start_push`).
+const ARC_MIN_RAD: f64 = 0.3 * std::f64::consts::PI / 180.0;
+const ARC_MAX_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
 /// A robot stopped on the tape waits for the model to put its line sensor this close to the tape
 /// before its route along it is planned, and this long at most.
 const ALIGN_AGREE_M: f64 = 0.008;
