@@ -265,8 +265,6 @@ fn contacts(truth: &Value) -> usize {
 }
 
 #[test]
-#[ignore = "1 run in 9 here failed on the push's known tight turn (a pusher's turn onto the tape \
-            beside the other is held); run it by hand with `-- --ignored`"]
 fn cooperative_push_runs_through_two_gateways_and_the_box_moves() {
     let _turn = take_turn();
     let dir = scratch("push");
