@@ -161,10 +161,10 @@ impl CooperativePush {
         if let Some(bot) = self.bots.get_mut(&id) {
             bot.backing = None;
             bot.rejoined = true;
+            bot.align_holds = 0;
             bot.aligning = Some(Align {
                 since: world.time,
                 not_before: world.time,
-                holds: 0,
             });
         }
         vec![Intent::Stop { robot: id }]
@@ -194,11 +194,7 @@ impl CooperativePush {
             if world.time < align.not_before {
                 continue;
             }
-            let heading = Vector2::new(view.pose.theta.cos(), view.pose.theta.sin());
-            let sensor_across = (Vector2::new(view.pose.x, view.pose.y) - site.centre.coords
-                + heading * SENSOR_AHEAD)
-                .dot(&site.push);
-            let agrees = sensor_across.abs() <= ALIGN_AGREE_M;
+            let agrees = site.sensor_across(view.pose).abs() <= ALIGN_AGREE_M;
             if !agrees && world.time.saturating_sub(align.since) < ALIGN_WAIT {
                 continue;
             }
@@ -209,7 +205,6 @@ impl CooperativePush {
             };
             if let Some(b) = self.bots.get_mut(&id) {
                 b.aligning = None;
-                b.align_holds = align.holds;
             }
             let route = Manoeuvre::from(view.pose, MANOEUVRE_MPS)
                 .straight(SENSOR_AHEAD + overshoot)
@@ -226,14 +221,13 @@ impl CooperativePush {
         let Some(b) = self.bots.get_mut(&id) else {
             return false;
         };
-        let holds = b.align_holds + 1;
-        if holds > ALIGN_HOLDS {
+        b.align_holds += 1;
+        if b.align_holds > ALIGN_HOLDS {
             return false;
         }
         b.aligning = Some(Align {
             since: world.time,
             not_before: world.time + ALIGN_RETRY,
-            holds,
         });
         true
     }

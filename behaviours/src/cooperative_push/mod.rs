@@ -165,6 +165,12 @@ impl Site {
     fn heading(v: Vector2<f64>) -> f64 {
         v.y.atan2(v.x)
     }
+
+    /// How far across the tape, along the push direction, a robot at `pose` has its line sensor.
+    fn sensor_across(&self, pose: Pose) -> f64 {
+        let heading = Vector2::new(pose.theta.cos(), pose.theta.sin());
+        (Vector2::new(pose.x, pose.y) - self.centre.coords + heading * SENSOR_AHEAD).dot(&self.push)
+    }
 }
 
 #[derive(Clone, Debug, Default)]
@@ -202,8 +208,6 @@ struct Align {
     since: Duration,
     /// Not sent before this (after a hold).
     not_before: Duration,
-    /// Holds so far.
-    holds: u32,
 }
 
 /// The cooperative pushing behaviour.

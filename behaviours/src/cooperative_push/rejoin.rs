@@ -179,9 +179,7 @@ impl CooperativePush {
             return out;
         };
         let heading = Vector2::new(view.pose.theta.cos(), view.pose.theta.sin());
-        let across = (Vector2::new(view.pose.x, view.pose.y) - site.centre.coords
-            + heading * SENSOR_AHEAD)
-            .dot(&site.push);
+        let across = site.sensor_across(view.pose);
         tracing::debug!(
             robot = n,
             across,
