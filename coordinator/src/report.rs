@@ -271,6 +271,55 @@ struct JsonRobot {
     reconnects: u64,
 }
 
+/// One link's figures: how fast commands reach the robot, what was lost, how late events came.
+#[derive(Serialize)]
+struct JsonLink {
+    robot: u16,
+    /// One way, taken as half the round trip.
+    latency_p50_ms: Option<f64>,
+    latency_p99_ms: Option<f64>,
+    rtt_p50_ms: Option<f64>,
+    rtt_p99_ms: Option<f64>,
+    packets_in: u64,
+    packets_out: u64,
+    /// Frames that arrived broken, and events and commands the delivery layer had to recover.
+    dropped_frames: u64,
+    checksum_errors: u64,
+    events_recovered: u64,
+    events_lost: u64,
+    commands_resent: u64,
+    link_losses: u64,
+    reconnects: u64,
+    events_timed: u64,
+    event_late_p50_ms: Option<f64>,
+    event_late_p99_ms: Option<f64>,
+}
+
+impl JsonLink {
+    fn of(robot: u16, l: &LinkStats) -> Self {
+        let ms = |d: Option<std::time::Duration>| d.map(|d| d.as_secs_f64() * 1e3);
+        Self {
+            robot,
+            latency_p50_ms: ms(l.rtt_p50).map(|v| v / 2.0),
+            latency_p99_ms: ms(l.rtt_p99).map(|v| v / 2.0),
+            rtt_p50_ms: ms(l.rtt_p50),
+            rtt_p99_ms: ms(l.rtt_p99),
+            packets_in: l.packets_in,
+            packets_out: l.packets_out,
+            dropped_frames: l.dropped_frames,
+            checksum_errors: l.checksum_errors,
+            events_recovered: l.delivery.events_recovered,
+            events_lost: l.delivery.events_lost,
+            commands_resent: l.delivery.commands_resent,
+            link_losses: l.losses,
+            reconnects: l.reconnects,
+            events_timed: l.events_timed,
+            event_late_p50_ms: ms(l.event_late_p50),
+            event_late_p99_ms: ms(l.event_late_p99),
+        }
+    }
+}
+
 #[derive(Serialize)]
 struct JsonKick {
     robot: u16,
@@ -309,7 +358,10 @@ struct JsonReport<'a> {
     lost_s: f64,
     worst_uncertainty_mm: f64,
     held_intents: &'a [String],
-    links: &'a [crate::supervisor::LinkRecord],
+    /// Per link: latency, losses, event lateness.
+    links: Vec<JsonLink>,
+    /// Links lost and robots (re)connected during the run.
+    link_events: &'a [crate::supervisor::LinkRecord],
     encounters: usize,
     restarts: u32,
     reflexes: u32,
@@ -493,7 +545,12 @@ impl Report {
             lost_s: self.lost_time().as_secs_f64(),
             worst_uncertainty_mm: self.worst_uncertainty_m() * 1e3,
             held_intents: &self.held_intents,
-            links: &self.links,
+            links: self
+                .robots
+                .iter()
+                .map(|r| JsonLink::of(r.id, &r.link))
+                .collect(),
+            link_events: &self.links,
             encounters: self.encounters,
             restarts: self.restarts,
             reflexes: self.reflexes,
@@ -568,6 +625,34 @@ impl Report {
                 r.link.packets_in,
                 r.link.packets_out,
                 r.link.losses,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Per link: one-way latency (half the round trip), losses, how late events arrived.
+    fn fmt_links(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let ms = |d: Option<std::time::Duration>, half: bool| {
+            d.map_or("-".to_string(), |d| {
+                let v = d.as_secs_f64() * 1e3;
+                format!("{:.1}", if half { v / 2.0 } else { v })
+            })
+        };
+        for r in &self.robots {
+            let l = &r.link;
+            writeln!(
+                f,
+                "  link {}: latency p50 {} ms, p99 {} ms; lost: {} frames broken, {} events recovered, {} events lost, {} commands resent, {} links lost; events late p99 {} ms ({} timed)",
+                r.id,
+                ms(l.rtt_p50, true),
+                ms(l.rtt_p99, true),
+                l.dropped_frames + l.checksum_errors,
+                l.delivery.events_recovered,
+                l.delivery.events_lost,
+                l.delivery.commands_resent,
+                l.losses,
+                ms(l.event_late_p99, false),
+                l.events_timed,
             )?;
         }
         Ok(())
@@ -657,8 +742,9 @@ impl Report {
             .map(|l| format!("robot {} {} at {:.2} s", l.robot, l.what, l.at_s))
             .collect();
         if !news.is_empty() {
-            writeln!(f, "  links: {}", news.join(", "))?;
+            writeln!(f, "  link events: {}", news.join(", "))?;
         }
+        self.fmt_links(f)?;
         let c = &self.conditions;
         let mut pace = vec![if c.realtime { "wall clock" } else { "lockstep" }.to_string()];
         pace.extend(c.link_profile.as_ref().map(|l| format!("link {l}")));

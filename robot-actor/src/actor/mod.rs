@@ -162,17 +162,21 @@ impl RobotActor {
         }
     }
 
-    fn emit(&self, kind: RobotEventKind) {
+    fn emit(&mut self, kind: RobotEventKind) {
         self.emit_at(kind, None);
     }
 
     /// Emits what the robot reported as happening at `robot_ms` of its clock.
-    fn emit_at(&self, kind: RobotEventKind, robot_ms: Option<u32>) {
+    fn emit_at(&mut self, kind: RobotEventKind, robot_ms: Option<u32>) {
         // States still waiting in this thread's batches happened before the event.
         batch::flush();
+        let at = Instant::now();
+        if let Some(ms) = robot_ms {
+            self.link.on_event_time(ms, at);
+        }
         let e = RobotEvent {
             robot_id: self.robot_id(),
-            at: Instant::now(),
+            at,
             robot_ms,
             kind,
         };
@@ -222,7 +226,7 @@ impl RobotActor {
             }
             AnyPacket::Hello(h) => self.on_hello(h),
             AnyPacket::Pong(p) => {
-                self.link.on_pong(p.seq);
+                self.link.on_pong(p.seq, p.robot_time_us);
                 if let Some(rtt) = self.link.last_rtt.take() {
                     self.delivery.on_rtt(rtt);
                 }
