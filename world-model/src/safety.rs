@@ -55,6 +55,9 @@ struct Growth {
     all: f64,
 }
 
+/// Wheels slower than this, m/s, leave a robot where it stands.
+const AT_REST_MPS: f64 = 0.005;
+
 /// Robots already within each other's widened footprints may close in by at most this along a
 /// path (two pushers backing off side by side are not quite parallel).
 const ALONGSIDE_M: f64 = 0.002;
@@ -188,6 +191,21 @@ impl Safety {
                 }
             })
             .collect()
+    }
+
+    /// Where `v`, driving on its wheels with no queued move, will be when a command sent now
+    /// reaches it, `late` after the pose its latest state gave (the state's age plus the link's
+    /// round trip: it came up one way and the command goes down the other). `None` for a robot
+    /// at rest, whose pose stands. At most the check's horizon ahead: a robot silent for longer
+    /// is stopped by its own watchdog.
+    pub fn landing(&self, v: &RobotView, late: std::time::Duration) -> Option<Pose> {
+        let w = v.state.wheels;
+        let (left, right) = (f64::from(w.left_mps), f64::from(w.right_mps));
+        if left.abs().max(right.abs()) < AT_REST_MPS {
+            return None;
+        }
+        let dt = late.as_secs_f64().min(self.horizon_s);
+        Some(ahead(v.pose, (left, right), dt))
     }
 
     /// `Ok` when the intent is safe in `world`, else why not. `from` is where the robot's queued
@@ -454,6 +472,13 @@ fn sweep(p: Pose, command: MoveCommand) -> Vec<Pose> {
         .collect()
 }
 
+/// Where a robot at `p` driving its wheels at `(left, right)` m/s will be `dt` seconds later.
+pub fn ahead(p: Pose, (left, right): (f64, f64), dt: f64) -> Pose {
+    let v = (left + right) / 2.0;
+    let w = (right - left) / world::robot::WHEEL_GAUGE_M;
+    arc_pose(p, v * dt, w * dt)
+}
+
 /// The pose after driving `d` metres while turning by `a` radians at a constant rate.
 fn arc_pose(p: Pose, d: f64, a: f64) -> Pose {
     // The chord of a circular arc leaves along the mean heading; its length is d·sinc(a/2).
@@ -713,6 +738,35 @@ mod tests {
         assert!(s
             .check_planned(&straight(1, 0.1), &w, None, &planned)
             .is_err());
+    }
+
+    #[test]
+    fn a_driving_robot_is_judged_where_the_command_will_reach_it() {
+        let s = Safety::default();
+        // Robot 1 follows the tape east at 50 mm/s, robot 2 stands ahead: a 100 mm drive on
+        // ends 9 mm short of it from the pose robot 1's last state gave, and 16 mm into it from
+        // where the link's latency will have carried robot 1 (25 mm on, the horizon's worth).
+        let mut w = world(&[(1, 0.30, 0.5, 0.0), (2, 0.46, 0.5, 0.0)]);
+        {
+            let me = std::sync::Arc::make_mut(&mut w.robots.make_mut()[0]);
+            me.state.wheels.left_mps = 0.05;
+            me.state.wheels.right_mps = 0.05;
+        }
+        let late = std::time::Duration::from_millis(800);
+        let landing = s.landing(&w.robots[0], late).expect("it drives");
+        assert!(
+            (landing.x - (0.30 + 0.05 * s.horizon_s)).abs() < 1e-9,
+            "{landing:?}"
+        );
+        assert!(landing.y == 0.5 && landing.theta == 0.0);
+        let on = straight(1, 0.1);
+        assert!(s.check_planned(&on, &w, None, &[]).is_ok());
+        assert!(
+            s.check_planned(&on, &w, Some(landing), &[]).is_err(),
+            "from where it will be, the drive ends in robot 2"
+        );
+        // Standing, a robot is where its state says, however old.
+        assert_eq!(s.landing(&w.robots[1], late), None);
     }
 
     #[test]

@@ -29,7 +29,8 @@ pub trait Behaviour: Send + 'static {
         Vec::new()
     }
     /// Intents for an intent the supervisor's safety check held back (it never reached the
-    /// robot). Moves come here only under [`HeldPolicy::Tell`].
+    /// robot). Moves come here under [`HeldPolicy::Tell`] at once, and under the default
+    /// [`HeldPolicy::RetryThenReplan`] once they have been held for its patience.
     fn on_held(
         &mut self,
         _intent: &Intent,
@@ -53,7 +54,7 @@ pub trait Behaviour: Send + 'static {
     }
     /// What the team does with a move the safety check held back.
     fn held_policy(&self) -> HeldPolicy {
-        HeldPolicy::Tell
+        HeldPolicy::default()
     }
     /// A verdict judged from the behaviour's own state, asked after every hook; `None` while it
     /// runs. A behaviour may instead give it through [`Team::finish`] or [`Team::fail`].

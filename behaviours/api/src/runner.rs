@@ -65,7 +65,8 @@ impl<B: Behaviour + ?Sized> Runner<B> {
         self.call(|b, team| b.start(world, team))
     }
 
-    /// A new snapshot; held moves under `HeldPolicy::Retry` go out again first.
+    /// A new snapshot; held moves under `HeldPolicy::Retry` and `RetryThenReplan` go out
+    /// again first.
     pub fn snapshot(&mut self, world: &WorldSnapshot) -> Reply {
         if self.verdict.is_some() {
             return Reply::default();

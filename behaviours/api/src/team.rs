@@ -31,9 +31,28 @@ pub enum HeldPolicy {
         /// How long a move may stay held.
         patience: Duration,
     },
+    /// The default: the move stays outstanding and is sent again with the next snapshot until
+    /// it passes; held for `patience`, it is dropped and the behaviour's `on_held` re-plans (a
+    /// robot in the way may only be passing, and over a slow link the check sees it late).
+    RetryThenReplan {
+        /// How long a move is sent again before the behaviour hears of it.
+        patience: Duration,
+    },
     /// The run fails at once with the supervisor's reason: for choreographies that cannot be
     /// improvised, such as a push planned around a box.
     Fail,
+}
+
+/// The default policy's patience: a few round trips of the slowest link profile and a robot
+/// driving past at walking pace, short of the stall checks behaviours run on their robots.
+pub const DEFAULT_HELD_PATIENCE: Duration = Duration::from_secs(2);
+
+impl Default for HeldPolicy {
+    fn default() -> Self {
+        HeldPolicy::RetryThenReplan {
+            patience: DEFAULT_HELD_PATIENCE,
+        }
+    }
 }
 
 /// A move waiting to be sent again under [`HeldPolicy::Retry`].
@@ -313,6 +332,17 @@ impl Team {
                 m.retries.push_back(Retry { command, tag });
                 false
             }
+            HeldPolicy::RetryThenReplan { patience } => {
+                let since = *m.held_since.get_or_insert(now);
+                if now.saturating_sub(since) > patience {
+                    forget(m, tag);
+                    // What the behaviour plans instead gets its own patience.
+                    m.held_since = None;
+                    return true;
+                }
+                m.retries.push_back(Retry { command, tag });
+                false
+            }
         }
     }
 
@@ -430,7 +460,7 @@ mod tests {
     }
 
     #[test]
-    fn a_held_move_is_told_retried_or_fatal_as_the_policy_says() {
+    fn a_held_move_is_told_retried_replanned_or_fatal_as_the_policy_says() {
         let held = Intent::moves(1, [STEP], 3)[0];
         let now = Duration::from_secs(1);
 
@@ -454,6 +484,19 @@ mod tests {
             !v.success && v.summary.contains("still in the way"),
             "{v:?}"
         );
+
+        let mut replan = Team::new([1], HeldPolicy::RetryThenReplan { patience });
+        replan.outgoing(vec![held]);
+        assert!(!replan.held(&held, "in the way", now), "sent again first");
+        assert_eq!(replan.retries(), vec![held]);
+        assert!(!replan.held(&held, "in the way", now + patience));
+        assert_eq!(replan.retries(), vec![held]);
+        assert!(
+            replan.held(&held, "still in the way", now + patience * 2),
+            "the behaviour re-plans once patience is over"
+        );
+        assert!(replan.idle(1) && replan.retries().is_empty());
+        assert!(replan.verdict().is_none(), "a re-plan, not a failure");
 
         let mut fail = Team::new([1], HeldPolicy::Fail);
         fail.outgoing(vec![held]);

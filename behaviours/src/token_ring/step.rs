@@ -331,6 +331,12 @@ impl Behaviour for TokenRing {
         Vec::new()
     }
 
+    // It re-plans a held move itself at once (a detour, a robot behind backing away): a
+    // retry would only wait.
+    fn held_policy(&self) -> behaviour_api::team::HeldPolicy {
+        behaviour_api::team::HeldPolicy::Tell
+    }
+
     fn on_held(
         &mut self,
         intent: &Intent,

@@ -229,6 +229,12 @@ impl Behaviour for TrafficControl {
         }
     }
 
+    // It re-plans a held move itself at once (a detour, a robot behind backing away): a
+    // retry would only wait.
+    fn held_policy(&self) -> behaviour_api::team::HeldPolicy {
+        behaviour_api::team::HeldPolicy::Tell
+    }
+
     fn on_held(
         &mut self,
         intent: &Intent,

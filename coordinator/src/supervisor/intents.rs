@@ -89,13 +89,24 @@ impl Supervisor {
         world: &WorldSnapshot,
     ) -> Result<(), Option<u16>> {
         let id = intent.robot();
-        let from = self.planned.get(&id).map(Plan::end);
-        let others: Vec<(u16, Pose)> = self
+        let now = Instant::now();
+        let from = match self.planned.get(&id) {
+            Some(plan) => Some(plan.end()),
+            None => world.robot(id).and_then(|r| self.landing(r, now)),
+        };
+        let mut others: Vec<(u16, Pose)> = self
             .planned
             .iter()
             .filter(|(other, _)| **other != id)
             .map(|(other, plan)| (*other, plan.end()))
             .collect();
+        others.extend(
+            world
+                .robots
+                .iter()
+                .filter(|o| o.id != id && !self.planned.contains_key(&o.id))
+                .filter_map(|o| Some((o.id, self.landing(o, now)?))),
+        );
         if let Err(refusal) = self.safety.check_planned(&intent, world, from, &others) {
             warn!(?intent, reason = refusal.reason, "intent held back");
             self.held.push((world.time, intent, refusal.reason));
@@ -107,7 +118,6 @@ impl Supervisor {
                     .or_else(|| world.robot(id).map(|r| r.pose))
                     .unwrap_or_default();
                 let end = safety::end_pose(start, command);
-                let now = Instant::now();
                 let plan = self.planned.entry(id).or_insert_with(|| Plan {
                     ends: Default::default(),
                     sent: now,
@@ -150,6 +160,15 @@ impl Supervisor {
             }
         }
         Ok(())
+    }
+
+    /// Where a robot driving on its wheels will be when a command sent now reaches it
+    /// ([`Safety::landing`]), from its link's longest recent round trip and its latest state's
+    /// arrival.
+    fn landing(&self, r: &behaviours::RobotView, now: Instant) -> Option<Pose> {
+        let (rtt, state_at) = self.timing.get(&r.id)?;
+        let late = now.saturating_duration_since(*state_at) + rtt.unwrap_or_default();
+        self.safety.landing(r, late)
     }
 
     /// The move sent to `robot` under `number`, if one was, is not the behaviour's: its finish

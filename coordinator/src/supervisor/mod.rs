@@ -119,6 +119,9 @@ pub struct Supervisor {
     /// Robots whose link came back but whose first state report has not: the behaviour hears
     /// of the link only with it, as until then the robot's intents are held as lost.
     reconnected: std::collections::HashMap<u16, RobotEvent>,
+    /// Per robot: its link's longest recent round trip and when its latest state arrived, for
+    /// judging a moving robot where it will be when a command lands.
+    timing: std::collections::HashMap<u16, (Option<Duration>, Instant)>,
 }
 
 /// The tag of the re-localisation routine's moves (the behaviour never hears of them).
@@ -214,6 +217,7 @@ impl Supervisor {
             searches: Default::default(),
             routine_from: Default::default(),
             reconnected: Default::default(),
+            timing: Default::default(),
         }
     }
 
@@ -321,6 +325,7 @@ impl Handler<StateBatch> for Supervisor {
 impl Supervisor {
     /// One state update: into the world model, then the localisation's consequences.
     fn on_state(&mut self, u: StateUpdated, ctx: &mut Context<Self>) {
+        self.timing.insert(u.robot_id, (u.rtt, u.at));
         let transition = self.model.apply(&u);
         if let Some(e) = self.reconnected.remove(&u.robot_id) {
             self.tell_behaviour(e, ctx);

@@ -110,6 +110,11 @@ impl Delivery {
         self.rtts.push_back(rtt);
     }
 
+    /// The longest of the recent round trips.
+    pub(super) fn longest_rtt(&self) -> Option<Duration> {
+        self.rtts.iter().max().copied()
+    }
+
     /// How long a command may go unseen in the robot's state before it counts as lost.
     pub(super) fn wait(&self) -> Duration {
         match self.rtts.iter().max() {

@@ -126,6 +126,9 @@ pub struct StateUpdated {
     pub reduced: bool,
     /// Odometry pose.
     pub pose: Pose,
+    /// The longest of the link's recent round trips (`None` before the first pong): how long a
+    /// command sent now may take to reach the robot, and its answer to come back.
+    pub rtt: Option<Duration>,
 }
 
 /// Everything the actor knows about its robot.

@@ -196,6 +196,7 @@ impl RobotActor {
             state: self.reflected.state,
             reduced,
             pose,
+            rtt: self.delivery.longest_rtt(),
         };
         for s in &self.subscribers.states {
             s.do_send(u);

@@ -20,6 +20,7 @@ fn snapshots_follow_every_change_and_keep_their_own_time() {
             y: 0.0,
             theta: 0.0,
         },
+        rtt: None,
     };
     let ids = |v: &[Arc<RobotView>]| v.iter().map(|r| r.id).collect::<Vec<_>>();
     let first = model.shared_views();
@@ -106,6 +107,7 @@ fn line_sightings_pull_a_drifting_odometry_back_onto_the_tape() {
             state,
             reduced: false,
             pose: odo,
+            rtt: None,
         });
         let est = model.views()[0].pose;
         if k > 200 {
@@ -214,6 +216,7 @@ impl Drive {
             state,
             reduced: false,
             pose: self.odometry,
+            rtt: None,
         };
         if let Some(t) = self.model.apply(&u) {
             self.transitions.push(t);
@@ -544,6 +547,7 @@ fn a_bump_takes_the_estimate_back_before_the_jolt_and_widens_it() {
             state,
             reduced: false,
             pose,
+            rtt: None,
         }
     };
     let felt = |m: f64| Felt {
@@ -656,6 +660,7 @@ fn a_bump_of_metres_moves_the_estimate_no_farther_than_a_bump_can() {
         state,
         reduced: false,
         pose: start,
+        rtt: None,
     });
     let lie = Felt {
         moved_m: 65.535,
