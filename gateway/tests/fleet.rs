@@ -363,7 +363,7 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
     );
     // line_follow carries on with a robot adopted again: the laps are done by both.
     assert_eq!(report["success"], true, "{}", report["summary"]);
-    let links: Vec<&Value> = report["links"]
+    let links: Vec<&Value> = report["link_events"]
         .as_array()
         .expect("the report's link log")
         .iter()

@@ -290,6 +290,8 @@ fn unfinished(spec: &RunSpec) -> RunResult {
         kicks_landed: Vec::new(),
         contacts_at_kick: None,
         contacts_other: None,
+        latency_p99_ms: None,
+        event_late_p99_ms: None,
     }
 }
 
@@ -331,6 +333,15 @@ fn read_report(path: &Path, result: &mut RunResult) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
+    let worst = |key: &str| {
+        v["links"]
+            .as_array()?
+            .iter()
+            .filter_map(|l| l[key].as_f64())
+            .reduce(f64::max)
+    };
+    result.latency_p99_ms = worst("latency_p99_ms");
+    result.event_late_p99_ms = worst("event_late_p99_ms");
     if !result.kicks_landed.is_empty() {
         result.contacts_at_kick = v["contacts_at_kick"].as_u64();
         result.contacts_other = v["contacts_other"].as_u64();

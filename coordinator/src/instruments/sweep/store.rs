@@ -86,6 +86,12 @@ pub struct RunResult {
     /// Contacts that began at any other time (the supervision's).
     #[serde(default)]
     pub contacts_other: Option<u64>,
+    /// The slowest link's one-way latency p99, ms (half the ping round trip).
+    #[serde(default)]
+    pub latency_p99_ms: Option<f64>,
+    /// The latest link's event lateness p99, ms.
+    #[serde(default)]
+    pub event_late_p99_ms: Option<f64>,
 }
 
 impl RunResult {

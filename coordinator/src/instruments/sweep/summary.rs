@@ -131,6 +131,10 @@ pub struct TruthStats {
     pub runs_with_contacts_other: usize,
     /// Runs that ended with a robot lost and not found.
     pub lost_not_found: usize,
+    /// Over runs, the median and the worst of each run's slowest link latency p99, ms.
+    pub latency_p99_ms: Option<(f64, f64)>,
+    /// Over runs, the median and the worst of each run's latest event lateness p99, ms.
+    pub event_late_p99_ms: Option<(f64, f64)>,
 }
 
 impl TruthStats {
@@ -161,8 +165,17 @@ impl TruthStats {
                 .filter(|r| r.contacts_other.unwrap_or(0) > 0)
                 .count(),
             lost_not_found: runs.iter().filter(|r| r.lost_not_found()).count(),
+            latency_p99_ms: median_and_worst(runs.iter().filter_map(|r| r.latency_p99_ms)),
+            event_late_p99_ms: median_and_worst(runs.iter().filter_map(|r| r.event_late_p99_ms)),
         }
     }
+}
+
+/// The median and the largest of some figures, `None` without any.
+fn median_and_worst(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    Some((median(&v)?, *v.last()?))
 }
 
 /// One combination's row.
@@ -488,6 +501,34 @@ impl Summary {
         if self.combinations.iter().any(|c| c.truth.kicked > 0) {
             self.disturbances_markdown(&mut s);
         }
+        if self
+            .combinations
+            .iter()
+            .any(|c| c.truth.latency_p99_ms.is_some())
+        {
+            let _ = writeln!(s, "\n## Links\n");
+            let _ = writeln!(
+                s,
+                "Per run, the slowest link's one-way latency p99 and the latest link's event lateness p99: their median over runs and the worst run.\n"
+            );
+            let _ = writeln!(
+                s,
+                "| combination | latency p99, median [ms] | worst [ms] | events late p99, median [ms] | worst [ms] |"
+            );
+            let _ = writeln!(s, "|---|---:|---:|---:|---:|");
+            for c in &self.combinations {
+                let pair = |v: Option<(f64, f64)>| {
+                    v.map_or("- | -".to_string(), |(m, w)| format!("{m:.1} | {w:.1}"))
+                };
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} |",
+                    c.key,
+                    pair(c.truth.latency_p99_ms),
+                    pair(c.truth.event_late_p99_ms)
+                );
+            }
+        }
         for m in &self.metrics {
             let _ = writeln!(s, "\n## {m}\n");
             let _ = writeln!(s, "| combination | n | mean | median | p95 |");
@@ -623,6 +664,8 @@ mod tests {
             worst_model_error_mm: Some(error),
             lost_episodes: Some(lost),
             lost_s: Some(lost as f64 * 1.5),
+            latency_p99_ms: Some(20.0 + 10.0 * lost as f64),
+            event_late_p99_ms: Some(error),
             ..old.clone()
         };
         let runs = [
@@ -644,6 +687,8 @@ mod tests {
                 median_model_error_mm: Some(12.0),
                 lost_episodes: 3,
                 lost_s: 4.5,
+                latency_p99_ms: Some((30.0, 40.0)),
+                event_late_p99_ms: Some((12.0, 40.0)),
                 ..TruthStats::default()
             }
         );
