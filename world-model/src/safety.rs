@@ -56,7 +56,7 @@ struct Growth {
 }
 
 /// Wheels slower than this, m/s, leave a robot where it stands.
-const AT_REST_MPS: f64 = 0.005;
+pub const AT_REST_MPS: f64 = 0.005;
 
 /// Robots already within each other's widened footprints may close in by at most this along a
 /// path (two pushers backing off side by side are not quite parallel).

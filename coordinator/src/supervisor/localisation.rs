@@ -11,8 +11,8 @@ use protocol::packets::DriveMode;
 const ROOM_STEP_M: f64 = 0.04;
 const ROOM_MPS: f32 = 0.04;
 const ROOM_MOST_M: f64 = 0.12;
-/// Wheels slower than this are at rest.
-const AT_REST_MPS: f32 = 0.005;
+/// Wheels slower than this are at rest (the safety check's measure, in the state's units).
+const AT_REST_MPS: f32 = world_model::safety::AT_REST_MPS as f32;
 
 /// Whether a robot's wheels turn.
 fn wheels_turn(v: &behaviours::RobotView) -> bool {

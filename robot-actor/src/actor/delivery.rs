@@ -59,6 +59,8 @@ pub(super) struct Delivery {
     drive: Option<Pending<Expect>>,
     /// Recent round trips.
     rtts: VecDeque<Duration>,
+    /// The longest of them, kept with them: every state packet reads it.
+    longest: Option<Duration>,
     /// Counters for the link statistics.
     pub(super) counts: DeliveryCounts,
 }
@@ -98,6 +100,7 @@ impl Delivery {
         *self = Delivery {
             counts,
             rtts,
+            longest: self.longest,
             ..Delivery::default()
         };
     }
@@ -108,17 +111,18 @@ impl Delivery {
             self.rtts.pop_front();
         }
         self.rtts.push_back(rtt);
+        self.longest = self.rtts.iter().max().copied();
     }
 
     /// The longest of the recent round trips.
     pub(super) fn longest_rtt(&self) -> Option<Duration> {
-        self.rtts.iter().max().copied()
+        self.longest
     }
 
     /// How long a command may go unseen in the robot's state before it counts as lost.
     pub(super) fn wait(&self) -> Duration {
-        match self.rtts.iter().max() {
-            Some(&longest) => longest.mul_f64(1.5) + WAIT_MARGIN,
+        match self.longest {
+            Some(longest) => longest.mul_f64(1.5) + WAIT_MARGIN,
             None => UNMEASURED_WAIT,
         }
     }
