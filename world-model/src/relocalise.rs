@@ -33,7 +33,7 @@ use crate::model::RELOCATE_M;
 
 /// Speed of the search and of the moves back onto the tape: slow enough that the sensor sees a
 /// 6 mm tape in several samples and the robot stops within a few millimetres.
-const SEARCH_MPS: f32 = 0.03;
+pub const SEARCH_MPS: f32 = 0.03;
 /// Turning speed (wheel speed) of the routine's turns.
 const TURN_MPS: f32 = 0.03;
 /// Longest wait for the wheels to stop after a stop command.
@@ -51,7 +51,8 @@ const FOLLOW_LIMIT: Duration = Duration::from_secs(4);
 const SETTLE_M: f64 = 0.015;
 const SETTLE_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
 const SETTLE_LINE_UM: i16 = 1600;
-const FOLLOW_MOST_M: f64 = 0.08;
+/// The longest follow of the routine, metres.
+pub const FOLLOW_MOST_M: f64 = 0.08;
 /// `LineState::flags` bit: no spot sees the line.
 const LINE_LOST: u8 = 1;
 /// A search that starts in a junction zone first drives this far beyond the zone's edge.
@@ -210,6 +211,12 @@ impl Relocaliser {
         self.step == Step::GaveUp
     }
 
+    /// While the routine's follow along the tape drives the robot: how far ahead it may yet take
+    /// it (the follow is the robot's own, so the others keep clear of the whole of it).
+    pub fn follow_reach(&self) -> Option<f64> {
+        matches!(self.step, Step::Following { .. }).then_some(FOLLOW_MOST_M)
+    }
+
     /// Whether the robot is back on the tape, facing along it, with the routine's moves done.
     pub fn aligned(&self) -> bool {
         matches!(self.step, Step::Followed { .. })
@@ -293,6 +300,13 @@ impl Relocaliser {
         } else {
             self.retry_at = Some(now + RETRY_AFTER);
         }
+    }
+
+    /// The follow along the tape was held (it would drive into another robot): the routine
+    /// stands aligned and starts it again a little later, counted like a held move.
+    pub fn follow_held(&mut self, now: Instant) {
+        self.step = Step::Aligning;
+        self.held(Vec::new(), now);
     }
 
     /// The next action, given the robot's latest view.
@@ -846,5 +860,43 @@ mod tests {
         assert!(!r.gave_up(), "not at once");
         r.poll(&lost, &world.track, later + STALLED_AFTER);
         assert!(r.gave_up(), "the sweep ran out");
+    }
+
+    /// A follow the supervisor held is started again after the retry pause, and only a follow
+    /// under way says how far ahead it may take the robot.
+    #[test]
+    fn a_held_follow_is_started_again_later() {
+        let world = presets::grid(4, 4, 1);
+        let now = Instant::now();
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, _) = swept(&lost, ROOM);
+        r.fixed(now);
+        let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
+        let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
+            panic!("aligning");
+        };
+        finish(&mut r, align.len());
+        assert_eq!(r.follow_reach(), None);
+        assert_eq!(
+            r.poll(&fixed, &world.track, now),
+            Some(Action::Follow(SEARCH_MPS))
+        );
+        assert_eq!(r.follow_reach(), Some(FOLLOW_MOST_M));
+        r.follow_held(now);
+        assert_eq!(r.follow_reach(), None);
+        assert_eq!(
+            r.poll(&fixed, &world.track, now),
+            None,
+            "waits before it tries again"
+        );
+        let later = now + RETRY_AFTER;
+        assert_eq!(
+            r.poll(&fixed, &world.track, later),
+            Some(Action::Moves(Vec::new()))
+        );
+        assert_eq!(
+            r.poll(&fixed, &world.track, later),
+            Some(Action::Follow(SEARCH_MPS))
+        );
     }
 }

@@ -481,9 +481,9 @@ impl Behaviour for CooperativePush {
                 if matches!(
                     self.phase,
                     Phase::Gather | Phase::FinderToSlot | Phase::HelperToSlot
-                ) && world
-                    .robot(robot)
-                    .is_some_and(|v| v.localisation == Localisation::Tracking) =>
+                ) && world.robot(robot).is_some_and(|v| {
+                    v.localisation == Localisation::Tracking && v.on_track.is_none()
+                }) =>
             {
                 let mut out = self.stop_team(world, team);
                 out.extend(self.fail(format!(

@@ -4,6 +4,10 @@
 
 use super::*;
 
+/// Spacing of the poses a searching follower's follow is taken to sweep: under half a body
+/// length, so that no footprint fits between two of them.
+const FOLLOW_SAMPLE_M: f64 = 0.02;
+
 impl Supervisor {
     /// Carries out a reply's intents in order and tells the behaviour which were held.
     pub(super) fn carry_out_all(&mut self, intents: Vec<Intent>, ctx: &mut Context<Self>) {
@@ -82,12 +86,13 @@ impl Supervisor {
         self.try_carry_out(intent, world).is_ok()
     }
 
-    /// As [`Self::carry_out_checked`]; a held intent names the robot it would have touched.
-    pub(super) fn try_carry_out(
+    /// The safety check of `intent` against every robot, as [`Self::try_carry_out`] makes it,
+    /// without carrying it out: where the mover starts from, or the robot it would touch.
+    pub(super) fn check_only(
         &mut self,
-        intent: Intent,
+        intent: &Intent,
         world: &WorldSnapshot,
-    ) -> Result<(), Option<u16>> {
+    ) -> Result<Option<Pose>, Option<u16>> {
         let id = intent.robot();
         let now = Instant::now();
         let from = match self.planned.get(&id) {
@@ -107,11 +112,24 @@ impl Supervisor {
                 .filter(|o| o.id != id && !self.planned.contains_key(&o.id))
                 .filter_map(|o| Some((o.id, self.landing(o, now)?))),
         );
-        if let Err(refusal) = self.safety.check_planned(&intent, world, from, &others) {
+        others.extend(self.search_follows(id, world));
+        if let Err(refusal) = self.safety.check_planned(intent, world, from, &others) {
             warn!(?intent, reason = refusal.reason, "intent held back");
-            self.held.push((world.time, intent, refusal.reason));
+            self.held.push((world.time, *intent, refusal.reason));
             return Err(refusal.robot);
         }
+        Ok(from)
+    }
+
+    /// As [`Self::carry_out_checked`]; a held intent names the robot it would have touched.
+    pub(super) fn try_carry_out(
+        &mut self,
+        intent: Intent,
+        world: &WorldSnapshot,
+    ) -> Result<(), Option<u16>> {
+        let id = intent.robot();
+        let now = Instant::now();
+        let from = self.check_only(&intent, world)?;
         match intent {
             Intent::Move { command, .. } => {
                 let start = from
@@ -160,6 +178,41 @@ impl Supervisor {
             }
         }
         Ok(())
+    }
+
+    /// Where the re-localiser's follows along the tape may take their robots (all but `id`):
+    /// poses every [`FOLLOW_SAMPLE_M`] along the arc the follower's wheels drive, straight ahead
+    /// before they turn. The follow is the robot's own line follower, which no move plans: a
+    /// robot approved into the merge a searching follower was coming down to met it there
+    /// (185035 `traffic_control`).
+    fn search_follows(&self, id: u16, world: &WorldSnapshot) -> Vec<(u16, Pose)> {
+        let mut out = Vec::new();
+        for (&fid, routine) in &self.relocalising {
+            let (Some(reach), Some(v)) = (routine.follow_reach(), world.robot(fid)) else {
+                continue;
+            };
+            if fid == id {
+                continue;
+            }
+            let w = v.state.wheels;
+            let (l, r) = (f64::from(w.left_mps), f64::from(w.right_mps));
+            let speed = (l + r) / 2.0;
+            let wheels = if speed > safety::AT_REST_MPS {
+                (l, r)
+            } else {
+                {
+                    let s = f64::from(world_model::relocalise::SEARCH_MPS);
+                    (s, s)
+                }
+            };
+            let v_mps = (wheels.0 + wheels.1) / 2.0;
+            let steps = (reach / FOLLOW_SAMPLE_M).ceil() as usize;
+            out.extend((1..=steps).map(|k| {
+                let d = (k as f64 * FOLLOW_SAMPLE_M).min(reach);
+                (fid, safety::ahead(v.pose, wheels, d / v_mps))
+            }));
+        }
+        out
     }
 
     /// Where a robot driving on its wheels will be when a command sent now reaches it

@@ -108,6 +108,25 @@ impl Supervisor {
                 }
             }
             Action::Follow(speed) => {
+                // The follow is the robot's own line follower: checked before it starts as the
+                // drive straight ahead it may make, and held like a search leg.
+                let sweep = Intent::Move {
+                    robot: id,
+                    command: MoveCommand::Straight {
+                        distance_m: FOLLOW_MOST_M as f32,
+                        speed_mps: speed,
+                    },
+                    tag: RELOCALISATION_TAG,
+                };
+                if let Err(blocker) = self.check_only(&sweep, world) {
+                    if let Some(other) = blocker {
+                        self.make_room(other, id, world);
+                    }
+                    if let Some(r) = self.relocalising.get_mut(&id) {
+                        r.follow_held(Instant::now());
+                    }
+                    return;
+                }
                 tracing::debug!(robot = id, speed, "re-localisation follows the tape");
                 if let Some(r) = self.robot(id) {
                     r.addr().do_send(Command::FollowLine(Some(speed)));

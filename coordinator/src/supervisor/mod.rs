@@ -21,7 +21,7 @@ use world::Track;
 use crate::behaviour_actor::{
     BehaviourActor, FromRobot, Held, Localised, Panicked, Snapshot, Start,
 };
-use world_model::relocalise::{Action, Relocaliser};
+use world_model::relocalise::{Action, Relocaliser, FOLLOW_MOST_M};
 use world_model::safety::{self, Safety};
 use world_model::{Transition, WorldModel};
 
