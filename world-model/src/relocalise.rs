@@ -762,6 +762,22 @@ mod tests {
         assert_eq!(moves.len(), 4, "{moves:?}");
     }
 
+    /// A robot lost on the grid, fixed across a tape and aligned along it: its routine has just
+    /// started the follow. Returns the routine and the robot's view there.
+    fn following(track: &Track, now: Instant) -> (Relocaliser, RobotView) {
+        let lost = view(0.3, 0.225, 0.1);
+        let (mut r, _) = swept(&lost, ROOM);
+        r.fixed(now);
+        let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
+        let Some(Action::Moves(align)) = r.poll(&fixed, track, now) else {
+            panic!("aligning");
+        };
+        finish(&mut r, align.len());
+        assert_eq!(r.follow_reach(), None, "not before the follow");
+        assert_eq!(r.poll(&fixed, track, now), Some(Action::Follow(SEARCH_MPS)));
+        (r, fixed)
+    }
+
     /// The follow goes on past the creep while the follower still turns the robot onto the
     /// tape, and ends once it drives straight along it (then it faces along the tape); one that
     /// never settles ends at the longest follow, not settled.
@@ -770,18 +786,7 @@ mod tests {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
         let follow = |turning_mm: u32| {
-            let lost = view(0.3, 0.225, 0.1);
-            let (mut r, _) = swept(&lost, ROOM);
-            r.fixed(now);
-            let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
-            let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
-                panic!("aligning");
-            };
-            finish(&mut r, align.len());
-            assert_eq!(
-                r.poll(&fixed, &world.track, now),
-                Some(Action::Follow(SEARCH_MPS))
-            );
+            let (mut r, fixed) = following(&world.track, now);
             // The follower turns it by half a degree per millimetre for `turning_mm`.
             let mut v = fixed.clone();
             for mm in 1..200 {
@@ -868,19 +873,7 @@ mod tests {
     fn a_held_follow_is_started_again_later() {
         let world = presets::grid(4, 4, 1);
         let now = Instant::now();
-        let lost = view(0.3, 0.225, 0.1);
-        let (mut r, _) = swept(&lost, ROOM);
-        r.fixed(now);
-        let fixed = view(0.3, 0.184, std::f64::consts::FRAC_PI_2);
-        let Some(Action::Moves(align)) = r.poll(&fixed, &world.track, now) else {
-            panic!("aligning");
-        };
-        finish(&mut r, align.len());
-        assert_eq!(r.follow_reach(), None);
-        assert_eq!(
-            r.poll(&fixed, &world.track, now),
-            Some(Action::Follow(SEARCH_MPS))
-        );
+        let (mut r, fixed) = following(&world.track, now);
         assert_eq!(r.follow_reach(), Some(FOLLOW_MOST_M));
         r.follow_held(now);
         assert_eq!(r.follow_reach(), None);
