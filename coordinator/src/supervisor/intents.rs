@@ -186,30 +186,24 @@ impl Supervisor {
     /// robot approved into the merge a searching follower was coming down to met it there
     /// (185035 `traffic_control`).
     fn search_follows(&self, id: u16, world: &WorldSnapshot) -> Vec<(u16, Pose)> {
+        let search = f64::from(world_model::relocalise::SEARCH_MPS);
         let mut out = Vec::new();
-        for (&fid, routine) in &self.relocalising {
+        for (&fid, routine) in self.relocalising.iter().filter(|(&f, _)| f != id) {
             let (Some(reach), Some(v)) = (routine.follow_reach(), world.robot(fid)) else {
                 continue;
             };
-            if fid == id {
-                continue;
-            }
             let w = v.state.wheels;
             let (l, r) = (f64::from(w.left_mps), f64::from(w.right_mps));
-            let speed = (l + r) / 2.0;
-            let wheels = if speed > safety::AT_REST_MPS {
+            let wheels = if (l + r) / 2.0 > safety::AT_REST_MPS {
                 (l, r)
             } else {
-                {
-                    let s = f64::from(world_model::relocalise::SEARCH_MPS);
-                    (s, s)
-                }
+                (search, search)
             };
-            let v_mps = (wheels.0 + wheels.1) / 2.0;
+            let speed = (wheels.0 + wheels.1) / 2.0;
             let steps = (reach / FOLLOW_SAMPLE_M).ceil() as usize;
             out.extend((1..=steps).map(|k| {
                 let d = (k as f64 * FOLLOW_SAMPLE_M).min(reach);
-                (fid, safety::ahead(v.pose, wheels, d / v_mps))
+                (fid, safety::ahead(v.pose, wheels, d / speed))
             }));
         }
         out
