@@ -311,9 +311,9 @@ impl WorldModel {
     /// Robot `id` felt itself moved by something other than its wheels from its uptime
     /// `since_ms` on, by about `moved_m` (the robot's own estimate). Where tape is within reach
     /// a jolt under 15 mm straight along the heading (the robot's own drive into something) is
-    /// given back to the odometry and the robot stays tracked; any other goes back to where the
-    /// estimate stood before the jolt, is widened to cover the move and a turn the accelerometer
-    /// cannot feel, and the robot is lost until the tape fixes it again: a hand that shifts a
+    /// given back to the odometry and the robot stays tracked; any other goes to halfway between
+    /// where the estimate stood before the jolt and the felt move's end, is widened to cover
+    /// the move and a turn the accelerometer cannot feel, and the robot is lost until the tape fixes it again: a hand that shifts a
     /// robot also turns it, and a turn is what makes a confident model wrong by decimetres a few
     /// seconds later. Wheels turned while it stood on a plain
     /// stretch of tape are left to the line reading at rest, which sees a shift or turn there;
@@ -394,8 +394,9 @@ impl WorldModel {
             e.stats.lost_episodes += 1;
         }
         start_lost(&mut e, at);
-        // Back to where the estimate stood before the jolt began: what the odometry counted
-        // since is the dragged wheels', not travel.
+        // From where the estimate stood before the jolt began (what the odometry counted since
+        // is the dragged wheels', not travel) halfway along the felt move: the true move lies
+        // between none and all of it.
         let mut pose = None;
         if let Some(&(_, before)) = e
             .recent
@@ -403,16 +404,25 @@ impl WorldModel {
             .rev()
             .find(|&&(t, _)| t.wrapping_add(BUMP_BEFORE_MS) <= since_ms)
         {
-            e.correction = Correction::between(odometry, before);
-            pose = Some(before);
+            let (s, c) = before.theta.sin_cos();
+            let half = |m: f64| m.clamp(-BUMP_CREDIBLE_M, BUMP_CREDIBLE_M) / 2.0;
+            let half = (half(along_m), half(left_m));
+            let mid = Pose {
+                x: before.x + half.0 * c - half.1 * s,
+                y: before.y + half.0 * s + half.1 * c,
+                theta: before.theta,
+            };
+            e.correction = Correction::between(odometry, mid);
+            pose = Some(mid);
         }
         // The felt move misses what the robot could not feel (a turn about its centre, the
-        // start of the jolt). It stays below the lost limit: once the tape fixes it across,
+        // start of the jolt), and along the heading it may be several times the true one. It
+        // stays below the lost limit: once the tape fixes it across,
         // along the tape it stays this uncertain until a mark, and beyond the limit it would
         // be lost again at once.
         widen(
             &mut e.cov,
-            (BUMP_MARGIN * moved_m).clamp(LOST_FLOOR_M, BUMP_MAX_M),
+            (HALF_BUMP_MARGIN * moved_m + HALF_BUMP_SLACK_M).clamp(LOST_FLOOR_M, BUMP_MAX_M),
             BUMP_TURN_RAD,
         );
         drop(e);
