@@ -527,8 +527,8 @@ impl TrackLoopLen {
 
 /// A robot that reports a bump after its dragged wheels counted 40 mm and 35° of travel that
 /// never happened: the model goes back to where it stood before the jolt and halfway along the
-/// felt move, widens its pose to cover the push and a turn and loses it, however small the felt move (a hand turns what it
-/// shifts); on a floor no tape reaches it is only widened.
+/// felt move, widens its pose to cover the push and a turn and loses it, however small the felt
+/// move (a hand turns what it shifts); on a floor no tape reaches it is only widened.
 #[test]
 fn a_bump_takes_the_estimate_back_before_the_jolt_halfway_along_the_felt_move() {
     let world = presets::preset("oval").unwrap();

@@ -313,10 +313,10 @@ impl WorldModel {
     /// a jolt under 15 mm straight along the heading (the robot's own drive into something) is
     /// given back to the odometry and the robot stays tracked; any other goes to halfway between
     /// where the estimate stood before the jolt and the felt move's end, is widened to cover
-    /// the move and a turn the accelerometer cannot feel, and the robot is lost until the tape fixes it again: a hand that shifts a
-    /// robot also turns it, and a turn is what makes a confident model wrong by decimetres a few
-    /// seconds later. Wheels turned while it stood on a plain
-    /// stretch of tape are left to the line reading at rest, which sees a shift or turn there;
+    /// the move and a turn the accelerometer cannot feel, and the robot is lost until the tape
+    /// fixes it again: a hand that shifts a robot also turns it, and a turn is what makes a
+    /// confident model wrong by decimetres a few seconds later. Wheels turned while it stood on
+    /// a plain stretch of tape are left to the line reading at rest, which sees a shift or turn there;
     /// at a junction or a tape's end it cannot, and the robot is lost. Where no tape is within
     /// reach it is only widened: nothing could fix it there. Returns why the robot is lost, for
     /// the supervisor to stop and re-localise it; `None` when it is not, or the model has no
