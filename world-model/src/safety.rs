@@ -525,14 +525,16 @@ impl Footprint {
         [at(ha, hb), at(-ha, hb), at(-ha, -hb), at(ha, -hb)]
     }
 
-    /// Smallest overlap of the two projections over the four separating axes (negative when
-    /// the rectangles are apart).
+    /// The least distance one rectangle must move along any of the four separating axes to
+    /// part from the other (negative when they are apart, by the widest gap). On an axis where
+    /// one projection holds the other, that is the way out to the nearer end, so a footprint
+    /// inside a larger region goes deeper as it moves towards the region's middle.
     fn depth(&self, other: &Footprint) -> f64 {
         let mut least = f64::INFINITY;
         for axis in self.axes.iter().chain(other.axes.iter()) {
             let (lo1, hi1) = self.project(*axis);
             let (lo2, hi2) = other.project(*axis);
-            least = least.min(hi1.min(hi2) - lo1.max(lo2));
+            least = least.min((hi1 - lo2).min(hi2 - lo1));
         }
         least
     }
@@ -649,6 +651,37 @@ mod tests {
             tag: 0,
         };
         assert!(s.check(&square, &skewed).is_err());
+    }
+
+    /// A tracked pusher 49 mm beside a lost one (27 mm and 20° of 1σ) stands wholly inside the
+    /// lost robot's region. Driving on along its heading, 1° towards the lost robot, takes it
+    /// deeper into that region and is held; backing out of it is approved.
+    #[test]
+    fn a_robot_inside_a_lost_robots_region_may_only_leave_it() {
+        let s = Safety::default();
+        let tracked = world(&[
+            (1, 0.5, 0.5, FRAC_PI_2),
+            (2, 0.451, 0.5, FRAC_PI_2 - 0.0175),
+        ]);
+        let lost = RobotView {
+            localisation: Localisation::Lost,
+            uncertainty: behaviour_api::PoseUncertainty {
+                position_m: 0.027,
+                heading_rad: 20f64.to_radians(),
+            },
+            ..(*tracked.robots[0]).clone()
+        };
+        let w = WorldSnapshot {
+            robots: [lost, (*tracked.robots[1]).clone()]
+                .into_iter()
+                .map(std::sync::Arc::new)
+                .collect(),
+            ..tracked.clone()
+        };
+        for d in [0.01, 0.04] {
+            assert!(s.check(&straight(2, d), &w).is_err(), "on by {d} m");
+            assert!(s.check(&straight(2, -d), &w).is_ok(), "back by {d} m");
+        }
     }
 
     #[test]
