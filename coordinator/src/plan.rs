@@ -347,11 +347,11 @@ pub fn load_world(name: &str) -> Result<World> {
     if let Some(robots) = name.strip_prefix("serpentine:") {
         // `serpentine:ROBOTS`, one generated loop for line following at scale.
         return match robots.parse::<usize>() {
-            Ok(n) if (1..=usize::from(u16::MAX)).contains(&n) => Ok(presets::serpentine(n)),
+            Ok(n) if (1..=world::MAX_ROBOTS).contains(&n) => Ok(presets::serpentine(n)),
             _ => bail!(
                 "world {name:?}: expected serpentine:ROBOTS with 1 to {} robots, e.g. \
                  serpentine:500",
-                u16::MAX
+                world::MAX_ROBOTS
             ),
         };
     }

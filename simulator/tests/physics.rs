@@ -525,6 +525,27 @@ fn a_kick_of_no_robot_or_by_no_number_is_refused() {
     assert_eq!(sim.robots()[0].pose().x, 0.5);
 }
 
+/// A kick that would land the robot beyond the walls is refused and the robot stays put: a run
+/// once went on, and reported success, with a robot 10 m outside its 1 m arena.
+#[test]
+fn a_kick_out_of_the_arena_is_refused() {
+    let mut sim = connected(world(OPEN), 1);
+    for how in [
+        world::cli::KickHow::Teleport,
+        world::cli::KickHow::Shove(Duration::from_millis(50)),
+    ] {
+        let e = sim.kick(0, [9.9, 9.9, 0.0], how).unwrap_err();
+        assert!(e.contains("outside the 1 × 1 m arena"), "{e}");
+        let e = sim.kick(0, [0.0, -0.49, 0.0], how).unwrap_err();
+        assert!(e.contains("outside"), "{e}");
+        let p = sim.robots()[0].pose();
+        assert_eq!((p.x, p.y), (0.5, 0.5));
+    }
+    assert!(sim
+        .kick(0, [0.02, 0.0, 0.0], world::cli::KickHow::Teleport)
+        .is_ok());
+}
+
 /// The bumps robot 0 reports over `d`.
 fn bumps(sim: &mut simulator::Simulation, d: Duration) -> Vec<Bump> {
     let mut seen = Vec::new();

@@ -376,6 +376,8 @@ impl WorldFile {
                 let v = o.get_ref();
                 match key {
                     "x" => v.x.span(),
+                    "y" => v.y.span(),
+                    "heading_deg" => span_or(&v.heading_deg, o.span()),
                     "width_m" => v.width_m.span(),
                     "height_m" => v.height_m.span(),
                     "mass_kg" => v.mass_kg.span(),
@@ -389,6 +391,8 @@ impl WorldFile {
                 match key {
                     "id" => v.id.span(),
                     "x" => v.x.span(),
+                    "y" => v.y.span(),
+                    "heading_deg" => span_or(&v.heading_deg, r.span()),
                     _ => r.span(),
                 }
             }
@@ -812,6 +816,35 @@ y = 0.5
         assert!(
             err.to_string().starts_with("cut.toml:3: ")
                 && err.to_string().len() > "cut.toml:3: ".len(),
+            "{err}"
+        );
+    }
+
+    /// Worlds the simulator cannot hold are refused at the line that makes them so: an arena
+    /// wider than [`crate::MAX_ARENA_M`] (1e30 m once panicked in the IR index; 1e4 m aborted
+    /// on a 94 GB allocation), more than [`crate::MAX_ROBOTS`] robots, and a robot heading that
+    /// is no number, named as the heading rather than the x.
+    #[test]
+    fn worlds_too_big_to_hold_or_with_no_heading_are_refused_at_their_line() {
+        for width in ["1e30", "1e4", "1000.0"] {
+            let text = format!("name = \"t\"\n[arena]\nwidth_m = {width}\nheight_m = 1.0\n");
+            let err = parse(&text, "big.toml").unwrap_err().to_string();
+            assert!(err.starts_with("big.toml:3: arena.width_m"), "{err}");
+        }
+        let mut text = String::from("name = \"t\"\n[arena]\nwidth_m = 60.0\nheight_m = 60.0\n");
+        for i in 0..=crate::MAX_ROBOTS {
+            let (x, y) = (0.1 + (i % 500) as f64 * 0.1, 0.1 + (i / 500) as f64 * 0.1);
+            text += &format!("[[robots]]\nid = {}\nx = {x:.1}\ny = {y:.1}\n", i + 1);
+        }
+        let err = parse(&text, "many.toml").unwrap_err().to_string();
+        assert!(err.contains("2001 robots: at most 2000"), "{err}");
+        let last = 4 + 4 * crate::MAX_ROBOTS + 2;
+        assert!(err.starts_with(&format!("many.toml:{last}: ")), "{err}");
+        let text = "name = \"t\"\n[arena]\nwidth_m = 1.0\nheight_m = 1.0\n[[robots]]\nid = 1\n\
+                    x = 0.5\ny = 0.5\nheading_deg = nan\n";
+        let err = parse(text, "nan.toml").unwrap_err().to_string();
+        assert!(
+            err.starts_with("nan.toml:9: robots[0].heading_deg"),
             "{err}"
         );
     }

@@ -95,6 +95,15 @@ impl Obstacle {
 /// Standard gravity, m/s².
 pub const GRAVITY_MPS2: f64 = 9.81;
 
+/// The widest and longest arena a world may have, metres: the largest generated lattice
+/// (400 × 400 nodes, 80.2 m) fits, and the simulator's spatial index over it stays within tens
+/// of megabytes (a 1,000 m arena took 911 MB before it was refused).
+pub const MAX_ARENA_M: f64 = 100.0;
+
+/// The most robots a world may hold: twice the largest fleet the project runs (1,000 robots
+/// on a 64 × 32 lattice); 20,001 robots took 792 MB and gave no result in a minute.
+pub const MAX_ROBOTS: usize = 2000;
+
 /// Where a robot starts.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RobotStart {
@@ -398,6 +407,12 @@ pub enum Problem {
         /// The known names.
         known: String,
     },
+    /// More robots than the simulator is built to hold.
+    #[error("{count} robots: at most {MAX_ROBOTS} are allowed")]
+    TooManyRobots {
+        /// How many the world lists.
+        count: usize,
+    },
     /// A robot starts inside an obstacle.
     #[error("robot {id} starts on top of obstacle {obstacle}")]
     RobotOnObstacle {
@@ -434,6 +449,7 @@ impl Problem {
             Problem::RobotsOverlap { robot, .. } => Place::Robot(*robot, "x"),
             Problem::RobotOnObstacle { robot, .. } => Place::Robot(*robot, "x"),
             Problem::UnknownLinkProfile { .. } => Place::Link("profile"),
+            Problem::TooManyRobots { .. } => Place::Robot(MAX_ROBOTS, "id"),
         }
     }
 }
@@ -477,16 +493,16 @@ impl World {
     fn validate_arena(&self) -> Result<(), Problem> {
         let a = self.arena;
         require(
-            positive(a.width_m),
+            positive(a.width_m) && a.width_m <= MAX_ARENA_M,
             Place::Arena("width_m"),
             a.width_m,
-            "a positive width in metres",
+            "a positive width in metres, at most 100",
         )?;
         require(
-            positive(a.height_m),
+            positive(a.height_m) && a.height_m <= MAX_ARENA_M,
             Place::Arena("height_m"),
             a.height_m,
-            "a positive height in metres",
+            "a positive height in metres, at most 100",
         )?;
         Ok(())
     }
@@ -522,15 +538,13 @@ impl World {
     fn validate_obstacles(&self) -> Result<(), Problem> {
         let a = self.arena;
         for (i, o) in self.obstacles.iter().enumerate() {
-            let finite = [o.position.x, o.position.y, o.heading_rad]
-                .iter()
-                .all(|v| v.is_finite());
-            require(
-                finite,
-                Place::Obstacle(i, "x"),
-                o.position.x,
-                "a finite position and heading",
-            )?;
+            for (key, v) in [
+                ("x", o.position.x),
+                ("y", o.position.y),
+                ("heading_deg", o.heading_rad.to_degrees()),
+            ] {
+                require(v.is_finite(), Place::Obstacle(i, key), v, "a finite number")?;
+            }
             require(
                 positive(o.width_m),
                 Place::Obstacle(i, "width_m"),
@@ -564,18 +578,21 @@ impl World {
 
     /// Each robot: a finite pose, a unique id, inside the arena, not on an obstacle.
     fn validate_robots(&self) -> Result<(), Problem> {
+        if self.robots.len() > MAX_ROBOTS {
+            return Err(Problem::TooManyRobots {
+                count: self.robots.len(),
+            });
+        }
         let a = self.arena;
         let mut ids = HashSet::with_capacity(self.robots.len());
         for (i, r) in self.robots.iter().enumerate() {
-            let finite = [r.position.x, r.position.y, r.heading_rad]
-                .iter()
-                .all(|v| v.is_finite());
-            require(
-                finite,
-                Place::Robot(i, "x"),
-                r.position.x,
-                "a finite position and heading",
-            )?;
+            for (key, v) in [
+                ("x", r.position.x),
+                ("y", r.position.y),
+                ("heading_deg", r.heading_rad.to_degrees()),
+            ] {
+                require(v.is_finite(), Place::Robot(i, key), v, "a finite number")?;
+            }
             if !ids.insert(r.id) {
                 return Err(Problem::DuplicateRobot { robot: i, id: r.id });
             }

@@ -54,7 +54,7 @@ pub fn grid_edge_count(cols: usize, rows: usize) -> usize {
 /// [`grid`] exactly as asked, for a request from a user: refused instead of clamped or grown.
 ///
 /// # Errors
-/// A side outside 2..=[`GRID_MAX_SIDE`], no robots, more robots than robot ids, or more robots
+/// A side outside 2..=[`GRID_MAX_SIDE`], no robots, more than [`crate::MAX_ROBOTS`], or more robots
 /// than the lattice has edges (one robot per edge at most), saying which.
 pub fn grid_exact(cols: usize, rows: usize, robots: usize) -> Result<World, String> {
     for (side, n) in [("columns", cols), ("rows", rows)] {
@@ -66,10 +66,10 @@ pub fn grid_exact(cols: usize, rows: usize, robots: usize) -> Result<World, Stri
     if robots == 0 {
         return Err("no robots: expected at least 1".into());
     }
-    if robots > usize::from(u16::MAX) {
+    if robots > crate::MAX_ROBOTS {
         return Err(format!(
-            "{robots} robots: robot ids go up to {} only",
-            u16::MAX
+            "{robots} robots: at most {} are allowed",
+            crate::MAX_ROBOTS
         ));
     }
     if robots > places {

@@ -92,17 +92,40 @@ fn load_world(name: &str) -> Result<simulator::World> {
 }
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() -> Result<()> {
+async fn main() -> std::process::ExitCode {
     let args = Args::parse();
     // Link buffer overflows are reported as warnings (at most one a second per robot).
     simulator::cli::init_logging();
     if args.list_worlds {
         for name in presets::preset_names() {
-            let w = presets::preset(name).context("preset")?;
-            println!("{name:10} {} robots  {}", w.robots.len(), w.description);
+            if let Some(w) = presets::preset(name) {
+                println!("{name:10} {} robots  {}", w.robots.len(), w.description);
+            }
         }
-        return Ok(());
+        return std::process::ExitCode::SUCCESS;
     }
+    // A world, fault or kick the simulator cannot take is a usage error, as a bad flag is.
+    let (sim, kicks) = match prepare(&args) {
+        Ok(p) => p,
+        Err(e) => {
+            eprintln!("pocketbot-sim: {e:#}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(&args, sim, kicks).await {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pocketbot-sim: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// A kick to land, on the robot at this index.
+type Kick = (usize, simulator::cli::KickArg);
+
+/// The simulation the flags describe, and the kicks to land in it.
+fn prepare(args: &Args) -> Result<(Simulation, Vec<Kick>)> {
     let mut world = load_world(&args.world)?;
     if let Some(link) = &args.link_profile {
         world.link = link.model;
@@ -130,6 +153,11 @@ async fn main() -> Result<()> {
             .with_context(|| format!("--kick {}: no robot {} in the world", k.robot, k.robot))?;
         kicks.push((i, *k));
     }
+    Ok((sim, kicks))
+}
+
+/// Serves the robots until the duration ends or the process is told to stop.
+async fn run(args: &Args, sim: Simulation, kicks: Vec<Kick>) -> Result<()> {
     let pace = match (args.fast, args.rate) {
         (true, _) => Pace::Unpaced,
         (false, Some(rate)) => Pace::Scaled(rate),

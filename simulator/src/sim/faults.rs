@@ -168,6 +168,21 @@ impl Simulation {
     /// # Errors
     /// As [`displace`](Self::displace) and [`shove`](Self::shove).
     pub fn kick(&mut self, i: usize, by: [f64; 3], how: world::cli::KickHow) -> Result<(), String> {
+        // A kick that would put the body through a wall lands nowhere a robot can be: refused,
+        // so a run never goes on with a robot outside the world it reports on.
+        if let Some(r) = self.robots.get(i) {
+            let at = *self.bodies[r.body].position();
+            let to = nalgebra::Point2::new(
+                f64::from(at.translation.x) + by[0],
+                f64::from(at.translation.y) + by[1],
+            );
+            if !self.world.arena.contains(to, world::robot::RADIUS_M) {
+                return Err(format!(
+                    "it would put robot {} at ({:.3}, {:.3}) m, outside the {} × {} m arena",
+                    r.id, to.x, to.y, self.world.arena.width_m, self.world.arena.height_m
+                ));
+            }
+        }
         match how {
             world::cli::KickHow::Teleport => self.displace(i, by[0], by[1], by[2]).map(|_| ()),
             world::cli::KickHow::Shove(d) => self.shove(i, (by[0], by[1], by[2]), d),

@@ -115,8 +115,35 @@ pub fn sweep(definition: &Definition, options: &Options) -> Result<()> {
         definition.conditions(),
         began.elapsed().as_secs_f64()
     );
-    let all: Vec<RunResult> = store::read_lines(&out.join(RESULTS))?;
+    let all = own_results(definition, store::read_lines(&out.join(RESULTS))?);
     report(out, definition, &all)
+}
+
+/// Of the lines in `results.jsonl`, those of `definition`'s runs, one per run (the last written
+/// wins): a line copied in twice, or one of another sweep's runs, is not counted, and a warning
+/// says how many were left out.
+fn own_results(definition: &Definition, lines: Vec<RunResult>) -> Vec<RunResult> {
+    let ids: BTreeSet<String> = definition.runs().iter().map(RunSpec::id).collect();
+    let read = lines.len();
+    let mut by_id: BTreeMap<String, RunResult> = BTreeMap::new();
+    let mut foreign = 0;
+    for r in lines {
+        if ids.contains(&r.id) {
+            by_id.insert(r.id.clone(), r);
+        } else {
+            foreign += 1;
+        }
+    }
+    let repeated = read - foreign - by_id.len();
+    if foreign > 0 || repeated > 0 {
+        eprintln!(
+            "sweep: {RESULTS} holds {foreign} line(s) of runs this sweep does not have and \
+             {repeated} repeated line(s): left out of the summary"
+        );
+    }
+    let mut own: Vec<RunResult> = by_id.into_values().collect();
+    own.sort_by_key(|r| r.index);
+    own
 }
 
 /// Writes `sweep.json`, or checks that the one there is this sweep's.
@@ -136,6 +163,16 @@ fn claim(out: &Path, definition: &Definition) -> Result<()> {
             Ok(())
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            // Results with no definition beside them may be any sweep's: counting them as this
+            // one's would mix another behaviour's runs into its rates.
+            let results = out.join(RESULTS);
+            if std::fs::metadata(&results).is_ok_and(|m| m.len() > 0) {
+                bail!(
+                    "{} holds results but no {DEFINITION}: nothing shows they are this sweep's; \
+                     give another --out",
+                    out.display()
+                );
+            }
             let json = serde_json::to_string_pretty(definition).context("encoding the sweep")?;
             std::fs::write(&path, json + "\n")
                 .with_context(|| format!("writing {}", path.display()))
