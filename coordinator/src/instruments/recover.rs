@@ -45,6 +45,9 @@ pub struct Recovered {
     pub metadata: u64,
     /// Attachments kept.
     pub attachments: u64,
+    /// Chunks left out on the way, whole records whose bytes are damaged (failing their CRC,
+    /// or unreadable inside): the byte offset of each, and what was wrong.
+    pub skipped: Vec<(u64, String)>,
     /// How the input ended.
     pub ending: Ending,
 }
@@ -56,6 +59,9 @@ impl fmt::Display for Recovered {
             "kept {} messages from {} chunks, {} metadata records and {} attachments; ",
             self.messages, self.chunks, self.metadata, self.attachments
         )?;
+        for (offset, why) in &self.skipped {
+            write!(f, "left out damaged data at byte {offset} ({why}); ")?;
+        }
         match &self.ending {
             Ending::Complete => write!(f, "the input was already complete"),
             Ending::Unfinished => write!(
@@ -219,6 +225,15 @@ fn chunk_records<'a>(
             header.uncompressed_size
         ));
     }
+    // 0 means the writer computed none; any other value must match, or a flipped bit inside a
+    // message would replay as if it had been recorded.
+    let crc = crc32fast::hash(data);
+    if header.uncompressed_crc != 0 && crc != header.uncompressed_crc {
+        return Err(format!(
+            "its data fails its CRC (0x{crc:08x}, recorded 0x{:08x})",
+            header.uncompressed_crc
+        ));
+    }
     let mut out = Vec::new();
     let mut pos = 0;
     while pos < data.len() {
@@ -310,6 +325,7 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
         chunks: 0,
         metadata: 0,
         attachments: 0,
+        skipped: Vec::new(),
         ending: Ending::Unfinished,
     };
     let cut = |pos: usize, why: String| Ending::Cut {
@@ -317,30 +333,58 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
         dropped: (buf.len() - pos) as u64,
         why,
     };
+    let mut resync_from = pos;
     loop {
         if pos == buf.len() {
             kept.ending = cut(pos, "the file ends without a data end record".into());
             break;
         }
-        let (opcode, body) = match frame(buf, pos) {
-            Ok(f) => f,
-            Err(why) => {
-                kept.ending = cut(pos, why);
-                break;
-            }
-        };
-        let record = match mcap::parse_record(opcode, body) {
+        let parsed = frame(buf, pos).and_then(|(opcode, body)| {
+            mcap::parse_record(opcode, body)
+                .map(|r| (r, body.len()))
+                .map_err(|e| format!("an unreadable {} record: {e}", op_name(opcode)))
+        });
+        let (record, len) = match parsed {
             Ok(r) => r,
-            Err(e) => {
-                kept.ending = cut(
-                    pos,
-                    format!("an unreadable {} record: {e}", op_name(opcode)),
-                );
-                break;
+            Err(why) => {
+                // A damaged length or header: the records after it may still be whole. Reading
+                // goes on at the next whole chunk that passes its CRC, if there is one, looked
+                // for from inside the record before: a length that grew still let that record
+                // read whole, and sent the reader past the chunks it swallowed.
+                match next_chunk(buf, resync_from) {
+                    Some(next) => {
+                        kept.skipped.push((pos as u64, why));
+                        pos = next;
+                        continue;
+                    }
+                    None => {
+                        kept.ending = cut(pos, why);
+                        break;
+                    }
+                }
             }
         };
         match take(&mut writer, &mut known, &mut kept, record)? {
             Taken::Next => {}
+            Taken::Skip(why) => {
+                kept.skipped.push((pos as u64, why));
+                // A damaged chunk's length may be what is damaged: where it says the next
+                // record starts is trusted only if a whole record starts there.
+                let after = pos + 9 + len;
+                let whole = |p: usize| {
+                    frame(buf, p).is_ok_and(|(op, body)| mcap::parse_record(op, body).is_ok())
+                };
+                if after < buf.len() && !whole(after) {
+                    match next_chunk(buf, pos + 1) {
+                        Some(next) => pos = next,
+                        None => {
+                            kept.ending = cut(after, "no whole chunk after a damaged one".into());
+                            break;
+                        }
+                    }
+                    continue;
+                }
+            }
             Taken::Cut(why) => {
                 kept.ending = cut(pos, why);
                 break;
@@ -354,10 +398,30 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
                 break;
             }
         }
-        pos += 9 + body.len();
+        resync_from = pos + 9;
+        pos += 9 + len;
     }
     writer.finish()?;
     Ok(kept)
+}
+
+/// The offset of the first whole chunk at or after `from` whose data passes its CRC.
+fn next_chunk(buf: &[u8], from: usize) -> Option<usize> {
+    (from..buf.len().saturating_sub(9))
+        .filter(|&p| buf[p] == op::CHUNK)
+        .find(|&p| {
+            let Ok((op, body)) = frame(buf, p) else {
+                return false;
+            };
+            match mcap::parse_record(op, body) {
+                Ok(Record::Chunk { header, data }) => {
+                    header.uncompressed_crc != 0
+                        && data.len() as u64 == header.uncompressed_size
+                        && crc32fast::hash(&data) == header.uncompressed_crc
+                }
+                _ => false,
+            }
+        })
 }
 
 /// The file's header record and where the records after it start.
@@ -387,6 +451,8 @@ fn read_header(buf: &[u8]) -> Result<(records::Header, usize)> {
 enum Taken {
     /// Kept or passed over: on to the next record.
     Next,
+    /// A chunk left out for damage inside it, for this reason: on to the next record.
+    Skip(String),
     /// Refused: the file is cut before it, for this reason.
     Cut(String),
     /// The data end or the footer: the data is all there.
@@ -404,7 +470,7 @@ fn take<W: Write + Seek>(
         Record::Chunk { header, data } => {
             let inner = match admit_chunk(known, &header, &data, kept.chunks) {
                 Ok(inner) => inner,
-                Err(why) => return Ok(Taken::Cut(why)),
+                Err(why) => return Ok(Taken::Skip(why)),
             };
             for r in &inner {
                 emit(writer, r)?;
@@ -635,6 +701,61 @@ mod tests {
             Ending::Cut { why, .. } => assert!(why.contains("channel 7"), "{why}"),
             other => panic!("{other:?}"),
         }
+    }
+
+    /// Each chunk's offset and length in `buf`, walking its top-level records.
+    fn chunks(buf: &[u8]) -> Vec<(usize, usize)> {
+        let mut pos = mcap::MAGIC.len();
+        let mut out = Vec::new();
+        while let Ok((op, body)) = frame(buf, pos) {
+            if op == op::CHUNK {
+                out.push((pos, body.len()));
+            }
+            if op == op::DATA_END {
+                break;
+            }
+            pos += 9 + body.len();
+        }
+        out
+    }
+
+    /// One flipped bit inside a chunk's messages fails its CRC: that chunk is left out and
+    /// named, every other one kept (19 such flips once replayed as exact). The first chunk
+    /// defines the channels, and chunks after it cannot be read without it: a flip there
+    /// keeps none. A first chunk whose length field grew still reads whole, and the chunks it
+    /// seemed to swallow are found again (0 of 18 chunks were kept).
+    #[test]
+    fn a_damaged_chunk_is_left_out_and_named_and_every_intact_one_kept() {
+        let input = sample();
+        let found = chunks(&input);
+        assert_eq!(found.len(), 3);
+        for (k, &(at, len)) in found.iter().enumerate() {
+            let mut flipped = input.clone();
+            flipped[at + 9 + len - 20] ^= 0x04;
+            let kept = recover(&flipped, Cursor::new(Vec::new())).unwrap();
+            let skipped: Vec<u64> = kept.skipped.iter().map(|s| s.0).collect();
+            let (chunks, lost) = if k == 0 {
+                (0, found.iter().map(|c| c.0 as u64).collect())
+            } else {
+                (2, vec![at as u64])
+            };
+            assert_eq!(
+                (kept.chunks, kept.messages),
+                (chunks, chunks * 10),
+                "chunk {k}"
+            );
+            assert_eq!(skipped, lost, "chunk {k}");
+            assert!(kept.skipped[0].1.contains("CRC"), "{:?}", kept.skipped);
+            assert_eq!(kept.ending, Ending::Complete);
+        }
+        let (at, len) = found[0];
+        let mut grown = input.clone();
+        grown[at + 1..at + 9].copy_from_slice(&(len as u64 + 500).to_le_bytes());
+        let mut out = Cursor::new(Vec::new());
+        let kept = recover(&grown, &mut out).unwrap();
+        assert_eq!((kept.chunks, kept.messages), (3, 30), "{kept}");
+        assert_eq!(messages(&out.into_inner()), messages(&input));
+        assert!(!kept.skipped.is_empty());
     }
 
     #[test]

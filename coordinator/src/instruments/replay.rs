@@ -62,6 +62,17 @@ pub fn read(buf: &[u8]) -> Result<Recording> {
     // chunks only; what that cuts away is what the file's tail had torn.
     let mut clean = std::io::Cursor::new(Vec::new());
     let kept = crate::instruments::recover::recover(buf, &mut clean)?;
+    // A replay that passed over damaged chunks could not say the run came out the same.
+    if let Some((offset, why)) = kept.skipped.first() {
+        bail!(
+            "the recording is damaged: the chunk at byte {offset} is unreadable ({why}){}; \
+             `coordinator recover` keeps the intact chunks",
+            match kept.skipped.len() {
+                1 => String::new(),
+                n => format!(", and {} more", n - 1),
+            }
+        );
+    }
     let buf = clean.get_ref().as_slice();
     let lenient = || mcap::read::Options::IgnoreEndMagic.into();
     let mut info = None;
