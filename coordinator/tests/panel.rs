@@ -721,3 +721,35 @@ fn the_panel_follows_a_replay() {
         );
     });
 }
+
+/// At most `MAX_SESSIONS` WebSockets are open at once; one more is refused with 503 and a reason
+/// (200 of them once raised the coordinator's memory from 21 to 75 MB).
+#[test]
+fn panel_sessions_are_capped() {
+    let c = teleop_panel_on_loopback();
+    let addr = addr_of(&c.url);
+    let (_, page) = http(addr, "/", &[]);
+    let token = token_in(&page);
+    let path = format!("/ws?token={token}");
+    let ours = format!("Origin: http://{addr}");
+    let mut open = Vec::new();
+    for i in 0..coordinator::instruments::panel::MAX_SESSIONS {
+        let mut s = TcpStream::connect(addr).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let mut req = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n{ours}\r\n");
+        for h in WS {
+            req.push_str(h);
+            req.push_str("\r\n");
+        }
+        req.push_str("\r\n");
+        s.write_all(req.as_bytes()).unwrap();
+        let mut buf = [0u8; 64];
+        let n = s.read(&mut buf).unwrap();
+        let head = String::from_utf8_lossy(&buf[..n]).to_string();
+        assert!(head.starts_with("HTTP/1.1 101"), "session {i}: {head}");
+        open.push(s);
+    }
+    let (status, body) = http(addr, &path, &ws_with(&[&ours]));
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("sessions are open already"), "{body}");
+}
