@@ -620,7 +620,10 @@ mod tests {
             .unwrap_err()
             .contains("rows"));
         let e = grid_exact(GRID_MAX_SIDE, GRID_MAX_SIDE, 70_000).unwrap_err();
-        assert!(e.contains("robot ids"), "{e}");
+        assert!(e.contains("at most 2000"), "{e}");
+        let e = grid_exact(GRID_MAX_SIDE, GRID_MAX_SIDE, crate::MAX_ROBOTS + 1).unwrap_err();
+        assert!(e.contains("2001 robots: at most 2000"), "{e}");
+        assert!(grid_exact(64, 32, 1000).is_ok());
     }
 
     #[test]
