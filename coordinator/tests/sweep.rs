@@ -388,21 +388,8 @@ fn bad_input_is_refused_with_the_reason() {
 /// `sweep.json` deleted another behaviour's results were mixed into its rates.
 #[test]
 fn a_sweep_counts_only_its_own_runs_and_refuses_a_folder_without_its_definition() {
-    let small = &[
-        "sweep",
-        "--behaviour",
-        "square_walk",
-        "--robots",
-        "2",
-        "--param",
-        "side=0.1",
-        "--duration",
-        "8",
-        "--seeds",
-        "1..2",
-    ];
     let out = dir("own-runs");
-    run_ok(small, &out, &[]);
+    run_ok(SWEEP, &out, &[]);
     let results = out.join("results.jsonl");
     let mut text = std::fs::read_to_string(&results).unwrap();
     let first = text.lines().next().unwrap().to_string();
@@ -411,14 +398,14 @@ fn a_sweep_counts_only_its_own_runs_and_refuses_a_folder_without_its_definition(
     assert_ne!(foreign, first);
     text += &format!("{first}\n{foreign}\n");
     std::fs::write(&results, text).unwrap();
-    let o = run_ok(small, &out, &[]);
+    let o = run_ok(SWEEP, &out, &[]);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(
         stderr.contains("1 line(s) of runs this sweep does not have and 1 repeated"),
         "{stderr}"
     );
     let md = std::fs::read_to_string(out.join("summary.md")).unwrap();
-    assert!(md.contains("2 of 2 runs have results"), "{md}");
+    assert!(md.contains("10 of 10 runs have results"), "{md}");
 
     std::fs::remove_file(out.join("sweep.json")).unwrap();
     let other = &["sweep", "--behaviour", "line_follow", "--seeds", "1..2"];

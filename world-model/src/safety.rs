@@ -595,6 +595,25 @@ mod tests {
         }
     }
 
+    /// `tracked` with its first robot lost, `position_m` and `heading_deg` uncertain (1σ).
+    fn first_lost(tracked: &WorldSnapshot, position_m: f64, heading_deg: f64) -> WorldSnapshot {
+        let lost = RobotView {
+            localisation: Localisation::Lost,
+            uncertainty: behaviour_api::PoseUncertainty {
+                position_m,
+                heading_rad: heading_deg.to_radians(),
+            },
+            ..(*tracked.robots[0]).clone()
+        };
+        WorldSnapshot {
+            robots: std::iter::once(lost)
+                .chain(tracked.robots[1..].iter().map(|r| (**r).clone()))
+                .map(std::sync::Arc::new)
+                .collect(),
+            ..tracked.clone()
+        }
+    }
+
     /// Two pushers side by side, 16 mm between their bodies, both facing the box; robot 1 lost
     /// with 20 mm and 20° of 1σ. It may not turn beside its neighbour nor drive along it, where
     /// its true heading may take it into it; the neighbour may back away from it.
@@ -602,21 +621,7 @@ mod tests {
     fn a_lost_pusher_may_not_move_beside_its_neighbour_which_may_back_away() {
         let s = Safety::default();
         let tracked = world(&[(1, 0.5, 0.3, FRAC_PI_2), (2, 0.548, 0.3, FRAC_PI_2)]);
-        let lost = RobotView {
-            localisation: Localisation::Lost,
-            uncertainty: behaviour_api::PoseUncertainty {
-                position_m: 0.02,
-                heading_rad: 20f64.to_radians(),
-            },
-            ..(*tracked.robots[0]).clone()
-        };
-        let w = WorldSnapshot {
-            robots: [lost, (*tracked.robots[1]).clone()]
-                .into_iter()
-                .map(std::sync::Arc::new)
-                .collect(),
-            ..tracked.clone()
-        };
+        let w = first_lost(&tracked, 0.02, 20.0);
         let turn = Intent::Move {
             robot: 1,
             command: MoveCommand::Rotate {
@@ -663,21 +668,7 @@ mod tests {
             (1, 0.5, 0.5, FRAC_PI_2),
             (2, 0.451, 0.5, FRAC_PI_2 - 0.0175),
         ]);
-        let lost = RobotView {
-            localisation: Localisation::Lost,
-            uncertainty: behaviour_api::PoseUncertainty {
-                position_m: 0.027,
-                heading_rad: 20f64.to_radians(),
-            },
-            ..(*tracked.robots[0]).clone()
-        };
-        let w = WorldSnapshot {
-            robots: [lost, (*tracked.robots[1]).clone()]
-                .into_iter()
-                .map(std::sync::Arc::new)
-                .collect(),
-            ..tracked.clone()
-        };
+        let w = first_lost(&tracked, 0.027, 20.0);
         for d in [0.01, 0.04] {
             assert!(s.check(&straight(2, d), &w).is_err(), "on by {d} m");
             assert!(s.check(&straight(2, -d), &w).is_ok(), "back by {d} m");
