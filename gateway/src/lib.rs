@@ -76,6 +76,8 @@ pub struct Gateway {
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
 /// How long the robot has to say hello on a new link before it is asked.
 const HELLO_WAIT: Duration = Duration::from_millis(500);
+/// How long the fleet is asked whether a robot id is bridged already.
+const TAKEN_TIMEOUT: Duration = Duration::from_secs(1);
 
 impl Gateway {
     /// Joins the fleet, declares the gateway's token and statistics, and bridges every robot.
@@ -211,11 +213,40 @@ impl Bridge {
         }
     }
 
+    /// Whether a liveliness token for robot `id` is alive on the fleet already.
+    async fn taken(&self, id: u16) -> bool {
+        let Ok(replies) = self
+            .session
+            .session()
+            .liveliness()
+            .get(self.keys.robot_alive(id))
+            .timeout(TAKEN_TIMEOUT)
+            .await
+        else {
+            return false;
+        };
+        while let Ok(reply) = replies.recv_async().await {
+            if reply.result().is_ok() {
+                return true;
+            }
+        }
+        false
+    }
+
     /// Bridges one open link until it closes; whether it was up (the robot said hello).
     async fn serve(&self, mut link: Link) -> bool {
         let Some((id, hello)) = hello(&mut link).await else {
             return false;
         };
+        // A robot id belongs to one gateway at a time: one already alive on the fleet is
+        // another gateway's robot, and this one (another simulator's robot 2, say) must never
+        // receive that robot's commands. Its link is closed unbridged, and tried again later.
+        if self.taken(id).await {
+            let why = format!("robot {id} is already bridged by another gateway on this fleet");
+            tracing::warn!(robot = id, peer = link.peer, "refused: {why}");
+            with_stats(&self.stats, self.slot, |s| s.last_error = Some(why));
+            return false;
+        }
         let up = match self
             .session
             .session()

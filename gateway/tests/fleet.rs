@@ -431,3 +431,52 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
         report["summary"]
     );
 }
+
+/// A robot id belongs to one gateway at a time. With robot 2 of one simulator bridged, a second
+/// gateway offering robot 2 of another simulator refuses it and says why, the run succeeds with
+/// the first, and the foreign robot never moves (it once received the host's commands for the
+/// whole run and moved 29 mm, while the real robot 2's model was corrupted).
+#[test]
+fn a_second_gateway_offering_a_taken_robot_id_refuses_it_and_that_robot_never_moves() {
+    let _turn = take_turn();
+    let dir = scratch("dup");
+    let other_dir = scratch("dup-other");
+    let config = zenoh_config(&dir);
+    let sim = Sim::start("oval", 1.0, &dir);
+    let other = Sim::start("oval", 1.0, &other_dir);
+    let fleet = format!("dup{}", std::process::id());
+    let listen = format!("tcp/127.0.0.1:{}", free_port());
+    let run = [
+        "--behaviour",
+        "line_follow",
+        "--world",
+        "oval",
+        "--param",
+        "laps=1",
+    ];
+    let coordinator = coordinator(&fleet, &listen, &config, &dir, &run);
+    let _a = gateway("a", &fleet, sim.address(1), &listen, &config, &dir);
+    let _b = gateway("b", &fleet, sim.address(2), &listen, &config, &dir);
+    until(&sim, "robot 2 driving", Duration::from_secs(60), |t| {
+        robot(t, 2)["distance_m"].as_f64().unwrap_or(0.0) > 0.1
+    });
+    let _c = gateway("c", &fleet, other.address(2), &listen, &config, &other_dir);
+
+    let status = coordinator.wait(Duration::from_secs(180));
+    let report = report(&dir);
+    let truth = sim.finish();
+    let foreign = other.finish();
+    assert_eq!(status.code(), Some(0), "{}", report["summary"]);
+    assert_eq!(report["success"], true, "{}", report["summary"]);
+    assert_eq!(contacts(&truth), 0, "contacts in the ground truth: {truth}");
+    let moved = robot(&foreign, 2)["distance_m"].as_f64().expect("distance");
+    assert!(
+        moved < 0.002,
+        "the other simulator's robot 2 drove {moved:.3} m"
+    );
+    let log = std::fs::read_to_string(other_dir.join("gateway-c.log")).expect("gateway c's log");
+    assert!(
+        log.contains("robot 2 is already bridged by another gateway"),
+        "gateway c did not refuse robot 2: {log}"
+    );
+}
