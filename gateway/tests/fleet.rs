@@ -307,6 +307,45 @@ fn cooperative_push_runs_through_two_gateways_and_the_box_moves() {
     }
 }
 
+/// `line_follow` on the oval over zenoh: one simulator, robot 1 behind gateway `a`, robot 2
+/// behind gateway `b`, and the coordinator, each its own process.
+struct OvalFleet {
+    dir: PathBuf,
+    config: PathBuf,
+    sim: Sim,
+    fleet: String,
+    listen: String,
+    coordinator: Proc,
+    a: Proc,
+    b: Proc,
+}
+
+impl OvalFleet {
+    /// Starts it for test `name`, with `--param` and any flags after it in `param`.
+    fn start(name: &str, param: &[&str]) -> OvalFleet {
+        let dir = scratch(name);
+        let config = zenoh_config(&dir);
+        let sim = Sim::start("oval", 1.0, &dir);
+        let fleet = format!("{name}{}", std::process::id());
+        let listen = format!("tcp/127.0.0.1:{}", free_port());
+        let mut run = vec!["--behaviour", "line_follow", "--world", "oval", "--param"];
+        run.extend_from_slice(param);
+        let coordinator = coordinator(&fleet, &listen, &config, &dir, &run);
+        let a = gateway("a", &fleet, sim.address(1), &listen, &config, &dir);
+        let b = gateway("b", &fleet, sim.address(2), &listen, &config, &dir);
+        OvalFleet {
+            dir,
+            config,
+            sim,
+            fleet,
+            listen,
+            coordinator,
+            a,
+            b,
+        }
+    }
+}
+
 fn unix_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -317,27 +356,20 @@ fn unix_ms() -> u64 {
 #[test]
 fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
     let _turn = take_turn();
-    let dir = scratch("kill");
-    let config = zenoh_config(&dir);
-    let sim = Sim::start("oval", 1.0, &dir);
-    let fleet = format!("kill{}", std::process::id());
-    let listen = format!("tcp/127.0.0.1:{}", free_port());
     // The host's own setting, which the robot must get again when it is adopted again: a
     // watchdog of 400 ms instead of the firmware's 500 (wheels braked from 0.15 m/s take about
     // 0.12 s to stand, and the stop must come within 0.6 s of the last packet).
-    let run = [
-        "--behaviour",
-        "line_follow",
-        "--world",
-        "oval",
-        "--param",
-        "laps=2",
-        "--setting",
-        "watchdog.timeout_ms=400",
-    ];
-    let coordinator = coordinator(&fleet, &listen, &config, &dir, &run);
-    let _a = gateway("a", &fleet, sim.address(1), &listen, &config, &dir);
-    let b = gateway("b", &fleet, sim.address(2), &listen, &config, &dir);
+    let f = OvalFleet::start("kill", &["laps=2", "--setting", "watchdog.timeout_ms=400"]);
+    let (dir, config, sim, fleet, listen, coordinator, b) = (
+        f.dir,
+        f.config,
+        f.sim,
+        f.fleet,
+        f.listen,
+        f.coordinator,
+        f.b,
+    );
+    let _a = f.a;
 
     // Mid-run: robot 2 is following the tape.
     until(&sim, "robot 2 driving", Duration::from_secs(60), |t| {
@@ -439,24 +471,12 @@ fn a_killed_gateway_loses_its_robot_which_stops_and_is_adopted_again() {
 #[test]
 fn a_second_gateway_offering_a_taken_robot_id_refuses_it_and_that_robot_never_moves() {
     let _turn = take_turn();
-    let dir = scratch("dup");
+    let f = OvalFleet::start("dup", &["laps=1"]);
+    let (dir, config, sim, fleet, listen, coordinator) =
+        (f.dir, f.config, f.sim, f.fleet, f.listen, f.coordinator);
+    let (_a, _b) = (f.a, f.b);
     let other_dir = scratch("dup-other");
-    let config = zenoh_config(&dir);
-    let sim = Sim::start("oval", 1.0, &dir);
     let other = Sim::start("oval", 1.0, &other_dir);
-    let fleet = format!("dup{}", std::process::id());
-    let listen = format!("tcp/127.0.0.1:{}", free_port());
-    let run = [
-        "--behaviour",
-        "line_follow",
-        "--world",
-        "oval",
-        "--param",
-        "laps=1",
-    ];
-    let coordinator = coordinator(&fleet, &listen, &config, &dir, &run);
-    let _a = gateway("a", &fleet, sim.address(1), &listen, &config, &dir);
-    let _b = gateway("b", &fleet, sim.address(2), &listen, &config, &dir);
     until(&sim, "robot 2 driving", Duration::from_secs(60), |t| {
         robot(t, 2)["distance_m"].as_f64().unwrap_or(0.0) > 0.1
     });
