@@ -76,8 +76,6 @@ pub struct Gateway {
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
 /// How long the robot has to say hello on a new link before it is asked.
 const HELLO_WAIT: Duration = Duration::from_millis(500);
-/// How long the fleet is asked whether a robot id is bridged already.
-const TAKEN_TIMEOUT: Duration = Duration::from_secs(1);
 
 impl Gateway {
     /// Joins the fleet, declares the gateway's token and statistics, and bridges every robot.
@@ -215,22 +213,9 @@ impl Bridge {
 
     /// Whether a liveliness token for robot `id` is alive on the fleet already.
     async fn taken(&self, id: u16) -> bool {
-        let Ok(replies) = self
-            .session
-            .session()
-            .liveliness()
-            .get(self.keys.robot_alive(id))
-            .timeout(TAKEN_TIMEOUT)
+        robot_actor::link::zenoh::alive_robots(&self.session, &self.keys)
             .await
-        else {
-            return false;
-        };
-        while let Ok(reply) = replies.recv_async().await {
-            if reply.result().is_ok() {
-                return true;
-            }
-        }
-        false
+            .is_ok_and(|ids| ids.contains(&id))
     }
 
     /// Bridges one open link until it closes; whether it was up (the robot said hello).

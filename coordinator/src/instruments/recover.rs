@@ -366,25 +366,9 @@ pub fn recover<W: Write + Seek>(buf: &[u8], out: W) -> Result<Recovered> {
         };
         match take(&mut writer, &mut known, &mut kept, record)? {
             Taken::Next => {}
-            Taken::Skip(why) => {
-                kept.skipped.push((pos as u64, why));
-                // A damaged chunk's length may be what is damaged: where it says the next
-                // record starts is trusted only if a whole record starts there.
-                let after = pos + 9 + len;
-                let whole = |p: usize| {
-                    frame(buf, p).is_ok_and(|(op, body)| mcap::parse_record(op, body).is_ok())
-                };
-                if after < buf.len() && !whole(after) {
-                    match next_chunk(buf, pos + 1) {
-                        Some(next) => pos = next,
-                        None => {
-                            kept.ending = cut(after, "no whole chunk after a damaged one".into());
-                            break;
-                        }
-                    }
-                    continue;
-                }
-            }
+            // A damaged chunk's length may be what is damaged: if no whole record starts where
+            // it says, the resynchronisation above looks from inside it.
+            Taken::Skip(why) => kept.skipped.push((pos as u64, why)),
             Taken::Cut(why) => {
                 kept.ending = cut(pos, why);
                 break;
