@@ -25,7 +25,10 @@ pub mod twin;
 
 pub use experiment::{run, run_with};
 pub use instruments::{Instruments, Run};
-pub use plan::{load_world, Kick, KickHow, LinkFault, Plan, RandomKick, SettingWrite, Transport};
+pub use plan::{
+    load_world, FaultKind, FaultSpec, Kick, KickHow, Plan, RandomFault, RandomKick, SettingWrite,
+    Transport,
+};
 pub use report::{GroundTruth, KickRecord, ObstacleReport, Report, RobotReport};
 pub use twin::BodyFault;
 /// The estimation layer the supervisor keeps (its own crate, re-exported for the benches).

@@ -6,6 +6,7 @@ use std::time::Duration;
 use crate::twin::BodyFault;
 use anyhow::{anyhow, bail, Result};
 pub use world::cli::{KickHow, RandomKick};
+pub use world::faults::{FaultKind, FaultSpec, RandomFault};
 use world::{file, presets, World};
 
 /// Where the robots come from.
@@ -48,8 +49,10 @@ pub struct Plan {
     pub duration: Duration,
     /// Behaviour parameters.
     pub params: std::collections::BTreeMap<String, String>,
-    /// Link cuts to inject into simulated robots.
-    pub faults: Vec<LinkFault>,
+    /// Faults of simulated robots' links and firmware (beside the world's own `[[faults]]`).
+    pub faults: Vec<FaultSpec>,
+    /// Faults drawn per seed (`--fault random:KIND`).
+    pub random_faults: Vec<RandomFault>,
     /// Body faults of simulated robots, by robot id, present from the start (a robot that
     /// cannot move, or cannot measure that it does, to prove that verdicts need the work done).
     pub body_faults: Vec<(u16, BodyFault)>,
@@ -151,6 +154,7 @@ impl Plan {
             duration: Self::DEFAULT_DURATION,
             params: std::collections::BTreeMap::new(),
             faults: Vec::new(),
+            random_faults: Vec::new(),
             body_faults: Vec::new(),
             kicks: Vec::new(),
             random_kicks: Vec::new(),
@@ -216,8 +220,8 @@ impl Plan {
         self
     }
 
-    /// Adds a link cut of a simulated robot.
-    pub fn fault(mut self, fault: LinkFault) -> Plan {
+    /// Adds a fault of a simulated robot's link or firmware.
+    pub fn fault(mut self, fault: FaultSpec) -> Plan {
         self.faults.push(fault);
         self
     }
@@ -317,15 +321,20 @@ impl Kick {
     }
 }
 
-/// A simulated link cut: robot `robot` (world order) loses its link at `at` for `duration`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct LinkFault {
-    /// Index of the robot in the world's robot list.
-    pub robot: usize,
-    /// When, after the robots are connected.
-    pub at: Duration,
-    /// For how long.
-    pub duration: Duration,
+/// The fault `random:KIND` draws for a run with `seed` among `robots` (ids): which robot and
+/// when, from one second to the fault's window.
+pub fn random_fault(r: RandomFault, seed: u64, robots: &[u16]) -> Option<FaultSpec> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xFA17_FA17_FA17_FA17);
+    let robot = *robots.get(rng.gen_range(0..robots.len().max(1)))?;
+    let from = 1.0;
+    let at = Duration::from_secs_f64(rng.gen_range(from..r.within.as_secs_f64().max(from + 1e-3)));
+    Some(FaultSpec {
+        kind: r.kind,
+        robot,
+        at,
+        lasting: r.lasting,
+    })
 }
 
 /// Loads a preset by name or a world file by path.

@@ -103,6 +103,8 @@ pub struct GroundTruth {
     pub model_samples: usize,
     /// The simulated robots' physics rate, Hz.
     pub physics_hz: u32,
+    /// The longest any robot's wheels kept turning while its host was silent, seconds.
+    pub longest_unattended_s: f64,
 }
 
 impl GroundTruth {
@@ -122,6 +124,22 @@ impl GroundTruth {
                 if self.wall_contacts == 1 { "" } else { "s" },
             )
         })
+    }
+}
+
+/// A fault as it landed on a simulated robot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaultRecord {
+    /// The fault.
+    pub spec: crate::plan::FaultSpec,
+    /// When it began, simulated seconds.
+    pub at_s: f64,
+}
+
+impl FaultRecord {
+    /// When it ended, simulated seconds.
+    pub fn until_s(&self) -> f64 {
+        self.at_s + self.spec.lasting.as_secs_f64()
     }
 }
 
@@ -213,6 +231,8 @@ pub struct Report {
     pub peak_memory_bytes: Option<u64>,
     /// Kicks given to simulated robots, as they landed.
     pub kicks: Vec<KickRecord>,
+    /// Faults injected into simulated robots' links and firmware, as they began.
+    pub faults: Vec<FaultRecord>,
     /// How the run was paced and loaded: the clock, the links' profile, busy threads beside it.
     pub conditions: Conditions,
 }
@@ -334,6 +354,15 @@ struct JsonKick {
 }
 
 #[derive(Serialize)]
+struct JsonFault {
+    robot: u16,
+    kind: &'static str,
+    at_s: f64,
+    for_s: f64,
+    text: String,
+}
+
+#[derive(Serialize)]
 struct JsonReport<'a> {
     behaviour: &'a str,
     world: &'a str,
@@ -348,6 +377,8 @@ struct JsonReport<'a> {
     robot_collisions: Option<usize>,
     wall_contacts: Option<usize>,
     kicks: Vec<JsonKick>,
+    faults: Vec<JsonFault>,
+    longest_unattended_s: Option<f64>,
     contacts_at_kick: Option<usize>,
     contacts_other: Option<usize>,
     worst_model_error_mm: Option<f64>,
@@ -533,6 +564,18 @@ impl Report {
                     text: k.describe(),
                 })
                 .collect(),
+            faults: self
+                .faults
+                .iter()
+                .map(|f| JsonFault {
+                    robot: f.spec.robot,
+                    kind: f.spec.kind.name(),
+                    at_s: f.at_s,
+                    for_s: f.spec.lasting.as_secs_f64(),
+                    text: f.spec.describe(),
+                })
+                .collect(),
+            longest_unattended_s: self.ground_truth.as_ref().map(|g| g.longest_unattended_s),
             contacts_at_kick: split.map(|c| c.0),
             contacts_other: split.map(|c| c.1),
             worst_model_error_mm: self.worst_model_error_m().map(|e| e * 1e3),
@@ -685,6 +728,22 @@ impl Report {
             for k in &self.kicks {
                 writeln!(f, "  kick: {}", k.describe())?;
             }
+            for x in &self.faults {
+                writeln!(
+                    f,
+                    "  fault: {} (began at {:.2} s)",
+                    x.spec.describe(),
+                    x.at_s
+                )?;
+            }
+            if g.longest_unattended_s > 0.0 {
+                writeln!(
+                    f,
+                    "  ground truth: the longest a robot's wheels turned with its host silent: \
+                     {:.0} ms",
+                    g.longest_unattended_s * 1e3
+                )?;
+            }
             if let (false, Some((own, other))) =
                 (self.kicks.is_empty(), self.contacts_at_kick_and_other())
             {
@@ -782,6 +841,7 @@ mod tests {
                 wall_contact_log: vec![(3.0, 1); contacts.1],
                 model_samples: 100,
                 physics_hz: 1000,
+                longest_unattended_s: 0.0,
             }),
             robots: Vec::new(),
             obstacles: Vec::new(),
@@ -795,6 +855,7 @@ mod tests {
             peak_memory_bytes: Some(50_000_000),
             conditions: Conditions::default(),
             kicks: Vec::new(),
+            faults: Vec::new(),
         }
     }
 

@@ -84,6 +84,13 @@ mod absent {
         pub never: Never,
     }
 
+    impl Truth {
+        /// Never called: there is no simulation.
+        pub fn longest_unattended_s(&self) -> f64 {
+            match self.never {}
+        }
+    }
+
     /// True poses; no value exists without the simulator.
     #[derive(Clone, Debug)]
     pub struct Poses {

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use behaviours::{Behaviour, BehaviourConfig, Intent, Registry, Team, Verdict, WorldSnapshot};
-use coordinator::{LinkFault, Plan, Report};
+use coordinator::{FaultKind, FaultSpec, Plan, Report};
 
 fn plan(behaviour: &str, robots: usize) -> Plan {
     Plan::sim(behaviour)
@@ -305,10 +305,11 @@ fn the_binary_exits_zero_on_success_and_explains_bad_flags() {
 
 #[test]
 fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
-    let p = plan("square_walk", 2).fault(LinkFault {
-        robot: 0,
+    let p = plan("square_walk", 2).fault(FaultSpec {
+        kind: FaultKind::Cut,
+        robot: 1,
         at: Duration::from_millis(1500),
-        duration: Duration::from_millis(1500),
+        lasting: Duration::from_millis(1500),
     });
     let report = run(p, &Registry::builtin());
     let cut = &report.robots[0];
@@ -323,6 +324,28 @@ fn a_robot_whose_link_is_cut_mid_walk_stops_reconnects_and_finishes() {
         "cut robot closed {:.1} mm from its start",
         closure * 1e3
     );
+}
+
+/// A robot whose firmware restarts mid-walk counts its encoders from zero again and forgets its
+/// queued moves and the host's settings: the host must see the restart, take the new counters as a
+/// new base (not as a drive back across the arena) and give the robot its settings again.
+#[test]
+fn a_robot_rebooted_mid_walk_is_taken_back_and_finishes_where_the_model_says() {
+    let p = plan("square_walk", 2).fault(FaultSpec {
+        kind: FaultKind::Reboot,
+        robot: 1,
+        at: Duration::from_millis(2500),
+        lasting: Duration::ZERO,
+    });
+    let report = run(p, &Registry::builtin());
+    assert_eq!(report.faults.len(), 1, "{report}");
+    let rebooted = &report.robots[0];
+    assert_eq!(rebooted.id, 1);
+    assert!(rebooted.link.reconnects >= 1, "{report}");
+    assert!(report.success(), "{report}");
+    // Before, the model put the robot back by everything it had driven since boot.
+    let worst = rebooted.worst_model_error_m.expect("simulated");
+    assert!(worst < 0.03, "model {:.1} mm off", worst * 1e3);
 }
 
 /// Ctrl-C (SIGINT) mid-experiment: every robot is stopped, the report is still printed and

@@ -65,6 +65,12 @@ impl Odometry {
         *self = Self::new(self.geometry, origin);
     }
 
+    /// The robot's counters start again (it restarted): the next update only records them, and
+    /// the pose stays where it is.
+    pub fn rebase(&mut self) {
+        self.last = None;
+    }
+
     /// Pulses counted since the origin, left and right.
     pub fn totals(&self) -> (i64, i64) {
         self.totals

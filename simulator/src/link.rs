@@ -83,6 +83,16 @@ pub struct LinkStats {
     pub overflow_to_host_bytes: u64,
     /// Packets still queued when the host end closed, discarded with it.
     pub discarded_on_close: u64,
+    /// Packets a fault lost (beside the loss model's).
+    pub fault_lost: u64,
+    /// Packets a fault corrupted (one byte replaced).
+    pub corrupted: u64,
+    /// Packets a fault delivered twice.
+    pub duplicated: u64,
+    /// Packets a fault let overtake the one before.
+    pub reordered: u64,
+    /// Packets a fault delayed.
+    pub delayed: u64,
     /// Most bytes ever waiting towards the robot at once (never above the buffer).
     pub peak_to_robot_bytes: u64,
     /// Most bytes ever waiting towards the host at once (never above the buffer).
@@ -149,6 +159,19 @@ impl PacketQueue {
         }
     }
 
+    /// Swaps the payloads of the two newest packets (their tags stay, so the queue stays in
+    /// delivery order): the newest overtakes the one before. Whether there were two.
+    pub fn swap_last_two(&mut self) -> bool {
+        let n = self.items.len();
+        if n < 2 {
+            return false;
+        }
+        let last = std::mem::take(&mut self.items[n - 1].1);
+        let before = std::mem::replace(&mut self.items[n - 2].1, last);
+        self.items[n - 1].1 = before;
+        true
+    }
+
     /// Tag of the oldest packet.
     pub fn first_tag(&self) -> Option<u64> {
         self.items.front().map(|&(at, _)| at)
@@ -193,12 +216,22 @@ impl PacketQueue {
     }
 }
 
+/// A fault on a link until a time: what it does to each packet sent meanwhile, either way.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Impairment {
+    /// What it does (a link-level kind; a cut is [`SimLink::set_up`], a reboot is the robot's).
+    pub kind: world::faults::FaultKind,
+    /// Packets sent from this simulated time on, ns, are left alone.
+    pub until_ns: u64,
+}
+
 /// One robot's link: two ordered queues of packets with delivery times.
 #[derive(Clone, Debug)]
 pub struct SimLink {
     to_robot: PacketQueue,
     to_host: PacketQueue,
     up: bool,
+    impairment: Option<Impairment>,
     stats: LinkStats,
     rng: ChaCha8Rng,
     /// The Gilbert–Elliott channel is in a fade.
@@ -219,6 +252,7 @@ impl SimLink {
             to_robot: PacketQueue::new(buffer_bytes),
             to_host: PacketQueue::new(buffer_bytes),
             up: true,
+            impairment: None,
             stats: LinkStats::default(),
             rng,
             fading: false,
@@ -239,6 +273,11 @@ impl SimLink {
             self.to_host.clear();
         }
         self.up = up;
+    }
+
+    /// Puts a fault on the link (`None` lifts it); it ends by itself at its `until_ns`.
+    pub fn impair(&mut self, impairment: Option<Impairment>) {
+        self.impairment = impairment;
     }
 
     /// Counters.
@@ -294,10 +333,7 @@ impl SimLink {
         air: &mut Piconet,
     ) {
         self.stats.to_robot += 1;
-        if let Some(at) = self.schedule(now_ns, packet.len(), model, air, true) {
-            // `schedule` checked that it fits.
-            let _ = self.to_robot.push(at, packet);
-        }
+        self.send(now_ns, packet, model, air, true);
     }
 
     /// The robot sends a packet at `now_ns`.
@@ -309,8 +345,64 @@ impl SimLink {
         air: &mut Piconet,
     ) {
         self.stats.to_host += 1;
-        if let Some(at) = self.schedule(now_ns, packet.len(), model, air, false) {
-            let _ = self.to_host.push(at, packet);
+        self.send(now_ns, packet, model, air, false);
+    }
+
+    /// Puts a packet on its way, through the fault on the link if one is on.
+    fn send(
+        &mut self,
+        now_ns: u64,
+        mut packet: Vec<u8>,
+        model: &LinkModel,
+        air: &mut Piconet,
+        to_robot: bool,
+    ) {
+        use world::faults::FaultKind;
+        let fault = self
+            .impairment
+            .filter(|f| now_ns < f.until_ns && self.up)
+            .map(|f| f.kind);
+        let hit = |rng: &mut ChaCha8Rng, share: f64| rng.gen::<f64>() < share;
+        let mut extra_s = 0.0;
+        match fault {
+            Some(FaultKind::Loss(share)) if hit(&mut self.rng, share) => {
+                self.stats.fault_lost += 1;
+                return;
+            }
+            Some(FaultKind::Corrupt(share)) if !packet.is_empty() && hit(&mut self.rng, share) => {
+                // One byte replaced by a different one: what a single burst of noise does.
+                let at = self.rng.gen_range(0..packet.len());
+                packet[at] ^= self.rng.gen_range(1..=u8::MAX);
+                self.stats.corrupted += 1;
+            }
+            Some(FaultKind::Latency(s)) => {
+                extra_s = s;
+                self.stats.delayed += 1;
+            }
+            _ => {}
+        }
+        let len = packet.len();
+        let Some(at) = self.schedule(now_ns, len, model, air, to_robot, extra_s) else {
+            return;
+        };
+        let twice = matches!(fault, Some(FaultKind::Duplicate(share)) if hit(&mut self.rng, share));
+        let overtakes =
+            matches!(fault, Some(FaultKind::Reorder(share)) if hit(&mut self.rng, share));
+        let queue = if to_robot {
+            &mut self.to_robot
+        } else {
+            &mut self.to_host
+        };
+        let copy = twice.then(|| packet.clone());
+        // `schedule` checked that it fits.
+        let _ = queue.push(at, packet);
+        if let Some(copy) = copy {
+            if queue.push(at, copy).is_ok() {
+                self.stats.duplicated += 1;
+            }
+        }
+        if overtakes && queue.swap_last_two() {
+            self.stats.reordered += 1;
         }
     }
 
@@ -363,6 +455,7 @@ impl SimLink {
         model: &LinkModel,
         air: &mut Piconet,
         to_robot: bool,
+        extra_s: f64,
     ) -> Option<u64> {
         if !self.up {
             self.stats.dropped_while_cut += 1;
@@ -400,7 +493,7 @@ impl SimLink {
         } else {
             0.0
         };
-        let mut at = start + air_ns + ((model.latency_s + jitter).max(0.0) * 1e9) as u64;
+        let mut at = start + air_ns + ((model.latency_s + jitter + extra_s).max(0.0) * 1e9) as u64;
         let queue = if to_robot {
             &self.to_robot
         } else {
@@ -420,6 +513,59 @@ mod tests {
 
     fn link() -> SimLink {
         SimLink::new(ChaCha8Rng::seed_from_u64(7))
+    }
+
+    #[test]
+    fn a_fault_on_the_link_does_what_it_says_to_packets_sent_while_it_lasts_and_then_stops() {
+        use world::faults::FaultKind;
+        let model = LinkModel::default();
+        let ms = 1_000_000u64;
+        // Twenty packets, one a millisecond, numbered by their byte; the fault covers the first
+        // ten; everything is read at 5 s.
+        let run = |kind: FaultKind| {
+            let (mut l, mut air) = (link(), Piconet::default());
+            l.impair(Some(Impairment {
+                kind,
+                until_ns: 10 * ms,
+            }));
+            for k in 0..20u8 {
+                l.send_to_robot(u64::from(k) * ms, vec![k, 0xAA], &model, &mut air);
+            }
+            let at_1s: Vec<Vec<u8>> = std::iter::from_fn(|| l.recv_at_robot(1_000 * ms)).collect();
+            let later: Vec<Vec<u8>> = std::iter::from_fn(|| l.recv_at_robot(5_000 * ms)).collect();
+            (l.stats(), at_1s, later)
+        };
+        let (stats, got, _) = run(FaultKind::Loss(1.0));
+        assert_eq!(stats.fault_lost, 10);
+        assert_eq!(
+            got.iter().map(|p| p[0]).collect::<Vec<_>>(),
+            (10..20).collect::<Vec<_>>()
+        );
+        let (stats, got, later) = run(FaultKind::Latency(1.5));
+        assert_eq!(stats.delayed, 10);
+        // Order kept: the undelayed packets wait behind the delayed ones.
+        assert!(got.is_empty(), "{got:?}");
+        assert_eq!(
+            later.iter().map(|p| p[0]).collect::<Vec<_>>(),
+            (0..20).collect::<Vec<_>>()
+        );
+        let (stats, got, _) = run(FaultKind::Corrupt(1.0));
+        assert_eq!(stats.corrupted, 10);
+        let changed = got
+            .iter()
+            .enumerate()
+            .filter(|(k, p)| **p != vec![*k as u8, 0xAA]);
+        assert_eq!(changed.count(), 10);
+        let (stats, got, _) = run(FaultKind::Duplicate(1.0));
+        assert_eq!((stats.duplicated, got.len()), (10, 30));
+        let (stats, got, _) = run(FaultKind::Reorder(1.0));
+        assert_eq!(stats.reordered, 9);
+        let order: Vec<u8> = got.iter().map(|p| p[0]).collect();
+        assert_ne!(order[..10], (0..10).collect::<Vec<_>>()[..]);
+        assert_eq!(order[10..], (10..20).collect::<Vec<_>>()[..]);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..20).collect::<Vec<_>>());
     }
 
     #[test]

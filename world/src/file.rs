@@ -135,6 +135,66 @@ pub struct WorldFile {
     /// Seed for every random choice of a run.
     #[serde(default)]
     pub seed: Option<u64>,
+    /// Faults the experiment injects.
+    #[serde(default)]
+    pub faults: Vec<Spanned<FaultFile>>,
+}
+
+/// One `[[faults]]` entry: what goes wrong with which robot, when and for how long.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FaultFile {
+    /// `cut`, `loss`, `latency`, `corrupt`, `duplicate`, `reorder` or `reboot`.
+    pub kind: Spanned<String>,
+    /// The robot's id.
+    pub robot: Spanned<u16>,
+    /// When it begins, seconds after the robots are connected.
+    pub at_s: Spanned<f64>,
+    /// How long it lasts, seconds (not for a reboot).
+    #[serde(default)]
+    pub for_s: Option<Spanned<f64>>,
+    /// The share of packets hit (default 1), or a latency spike's seconds (default 1).
+    #[serde(default)]
+    pub amount: Option<Spanned<f64>>,
+}
+
+impl FaultFile {
+    /// The fault, checked; `i` its index for the problem's place.
+    fn to_spec(&self, i: usize) -> Result<crate::faults::FaultSpec, Problem> {
+        let bad = |key: &'static str, why: String| Problem::BadFault { fault: i, key, why };
+        let kind = crate::faults::FaultKind::new(
+            self.kind.get_ref(),
+            self.amount.as_ref().map(|a| *a.get_ref()),
+        )
+        .map_err(|why| {
+            let key = if self.amount.is_some() && !why.starts_with("unknown") {
+                "amount"
+            } else {
+                "kind"
+            };
+            bad(key, why)
+        })?;
+        let seconds = |v: f64, key: &'static str| {
+            crate::cli::parse_duration(&v.to_string()).map_err(|why| bad(key, why))
+        };
+        let at = if *self.at_s.get_ref() == 0.0 {
+            std::time::Duration::ZERO
+        } else {
+            seconds(*self.at_s.get_ref(), "at_s")?
+        };
+        let lasting = match (&self.for_s, kind.lasts()) {
+            (Some(_), false) => return Err(bad("for_s", "a reboot happens at an instant".into())),
+            (None, false) => std::time::Duration::ZERO,
+            (Some(d), true) => seconds(*d.get_ref(), "for_s")?,
+            (None, true) => return Err(bad("for_s", "how long it lasts is missing".into())),
+        };
+        Ok(crate::faults::FaultSpec {
+            kind,
+            robot: *self.robot.get_ref(),
+            at,
+            lasting,
+        })
+    }
 }
 
 /// `[arena]`: walls around the rectangle 0 ≤ x ≤ `width_m`, 0 ≤ y ≤ `height_m`.
@@ -402,6 +462,18 @@ impl WorldFile {
                 "noise" => self.light.noise.as_ref()?.span(),
                 _ => return None,
             },
+            Place::Fault(i, key) => {
+                let f = self.faults.get(i)?;
+                let v = f.get_ref();
+                match key {
+                    "kind" => v.kind.span(),
+                    "robot" => v.robot.span(),
+                    "at_s" => v.at_s.span(),
+                    "for_s" => span_or(&v.for_s, f.span()),
+                    "amount" => span_or(&v.amount, f.span()),
+                    _ => f.span(),
+                }
+            }
         })
     }
 
@@ -484,6 +556,12 @@ impl WorldFile {
             link,
             light,
             seed: self.seed,
+            faults: self
+                .faults
+                .iter()
+                .enumerate()
+                .map(|(i, f)| f.get_ref().to_spec(i))
+                .collect::<Result<_, _>>()?,
         };
         world.validate()?;
         Ok(world)
@@ -847,6 +925,62 @@ y = 0.5
             err.starts_with("nan.toml:9: robots[0].heading_deg"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn faults_in_a_world_file_are_read_and_a_bad_one_is_named_at_its_line() {
+        let with = |fault: &str| format!("{GOOD}\n[[faults]]\n{fault}\n");
+        let w = parse(
+            &with("kind = \"loss\"\nrobot = 3\nat_s = 5\nfor_s = 2\namount = 0.5"),
+            "t",
+        )
+        .unwrap();
+        assert_eq!(w.faults.len(), 1);
+        assert_eq!(w.faults[0].kind, crate::faults::FaultKind::Loss(0.5));
+        assert_eq!(w.faults[0].lasting, std::time::Duration::from_secs(2));
+        assert_eq!(
+            parse(&with("kind = \"reboot\"\nrobot = 3\nat_s = 4"), "t")
+                .unwrap()
+                .faults[0]
+                .kind,
+            crate::faults::FaultKind::Reboot
+        );
+        let lines = GOOD.lines().count() + 2;
+        for (fault, key, line) in [
+            (
+                "kind = \"jam\"\nrobot = 3\nat_s = 5\nfor_s = 2",
+                "kind",
+                lines + 1,
+            ),
+            (
+                "kind = \"loss\"\nrobot = 9\nat_s = 5\nfor_s = 2",
+                "robot",
+                lines + 2,
+            ),
+            (
+                "kind = \"latency\"\nrobot = 3\nat_s = 5\nfor_s = 2\namount = 5",
+                "amount",
+                lines + 5,
+            ),
+            (
+                "kind = \"cut\"\nrobot = 3\nat_s = -1\nfor_s = 2",
+                "at_s",
+                lines + 3,
+            ),
+            (
+                "kind = \"cut\"\nrobot = 3\nat_s = 1\nfor_s = inf",
+                "for_s",
+                lines + 4,
+            ),
+        ] {
+            let e = parse(&with(fault), "t").unwrap_err();
+            assert_eq!(e.line(), Some(line), "{fault}: {e}");
+            assert!(
+                e.to_string().contains(&format!("faults[0].{key}"))
+                    || e.to_string().contains("fault 0"),
+                "{fault}: {e}"
+            );
+        }
     }
 
     #[test]

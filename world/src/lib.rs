@@ -9,6 +9,7 @@
 #![warn(missing_docs)]
 
 pub mod cli;
+pub mod faults;
 pub mod file;
 #[cfg(feature = "graph")]
 pub mod graph;
@@ -290,6 +291,8 @@ pub struct World {
     pub light: Light,
     /// Seed for every random choice of a run; `None` lets the simulator pick one.
     pub seed: Option<u64>,
+    /// Faults the experiment injects (a world file's `[[faults]]`).
+    pub faults: Vec<faults::FaultSpec>,
 }
 
 /// Which value of a world a [`Problem`] is about: a section, the index of an entry in its list
@@ -310,6 +313,8 @@ pub enum Place {
     Link(&'static str),
     /// A key of `[light]`.
     Light(&'static str),
+    /// A key of `[[faults]]` number `.0`.
+    Fault(usize, &'static str),
 }
 
 impl fmt::Display for Place {
@@ -322,6 +327,7 @@ impl fmt::Display for Place {
             Place::Robot(i, k) => write!(f, "robots[{i}].{k}"),
             Place::Link(k) => write!(f, "link.{k}"),
             Place::Light(k) => write!(f, "light.{k}"),
+            Place::Fault(i, k) => write!(f, "faults[{i}].{k}"),
         }
     }
 }
@@ -407,6 +413,16 @@ pub enum Problem {
         /// The known names.
         known: String,
     },
+    /// A declared fault is not one the simulator can inject.
+    #[error("fault {fault}: {why}")]
+    BadFault {
+        /// Index of the fault.
+        fault: usize,
+        /// The key at fault.
+        key: &'static str,
+        /// What is wrong.
+        why: String,
+    },
     /// More robots than the simulator is built to hold.
     #[error("{count} robots: at most {MAX_ROBOTS} are allowed")]
     TooManyRobots {
@@ -450,6 +466,7 @@ impl Problem {
             Problem::RobotOnObstacle { robot, .. } => Place::Robot(*robot, "x"),
             Problem::UnknownLinkProfile { .. } => Place::Link("profile"),
             Problem::TooManyRobots { .. } => Place::Robot(MAX_ROBOTS, "id"),
+            Problem::BadFault { fault, key, .. } => Place::Fault(*fault, key),
         }
     }
 }
@@ -486,7 +503,22 @@ impl World {
         self.validate_obstacles()?;
         self.validate_robots()?;
         self.check_robot_overlap()?;
-        self.validate_link_and_light()
+        self.validate_link_and_light()?;
+        self.validate_faults()
+    }
+
+    /// Every declared fault is of a robot the world has.
+    fn validate_faults(&self) -> Result<(), Problem> {
+        for (i, f) in self.faults.iter().enumerate() {
+            if !self.robots.iter().any(|r| r.id == f.robot) {
+                return Err(Problem::BadFault {
+                    fault: i,
+                    key: "robot",
+                    why: format!("the world has no robot {}", f.robot),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// The arena's size.

@@ -180,6 +180,7 @@ fn generated(
         link: RadioModel::default(),
         light: Light::default(),
         seed: Some(1),
+        faults: Vec::new(),
     }
 }
 

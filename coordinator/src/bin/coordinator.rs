@@ -106,6 +106,15 @@ struct Args {
     /// into another body or a wall; a shove unless HOW says teleport.
     #[arg(long, value_name = "[HOW:]ID:SECONDS:DX,DY[,DEG] | random[:HOW][:SECONDS]", value_parser = world::cli::parse_kick)]
     kick: Vec<world::cli::KickSpec>,
+    /// Inject a fault into simulated robot ID's link or firmware SECONDS into the experiment, for
+    /// FOR_SECONDS (repeatable, beside the world file's `[[faults]]`). KIND is `cut` (nothing
+    /// gets through), `loss`, `corrupt` (one byte of a packet replaced), `duplicate` or
+    /// `reorder` (AMOUNT: the share of packets hit, default 1), `latency` (AMOUNT: seconds
+    /// added, default 1, at most 2) or `reboot` (the firmware restarts; no FOR_SECONDS).
+    /// `random:KIND[:FOR_SECONDS[:AMOUNT]]` draws the robot and a time from 1 to 30 s per seed,
+    /// lasting 3 s unless given.
+    #[arg(long, value_name = "KIND:ID:SECONDS[:FOR_SECONDS[:AMOUNT]] | random:KIND[:FOR_SECONDS[:AMOUNT]]", value_parser = world::faults::parse_fault)]
+    fault: Vec<world::faults::FaultArg>,
     /// Write robot setting PATH (a field of the robot's settings, e.g. watchdog.timeout_ms) to
     /// VALUE on every robot before the experiment starts (repeatable); each robot gets it again
     /// after a reconnect. A value the robot refuses ends the run before it starts.
@@ -308,6 +317,22 @@ fn plan(args: &Args) -> Result<Plan> {
             .filter_map(|k| match *k {
                 world::cli::KickSpec::Random(r) => Some(r),
                 world::cli::KickSpec::Given(_) => None,
+            })
+            .collect(),
+        faults: args
+            .fault
+            .iter()
+            .filter_map(|f| match *f {
+                world::faults::FaultArg::Given(f) => Some(f),
+                world::faults::FaultArg::Random(_) => None,
+            })
+            .collect(),
+        random_faults: args
+            .fault
+            .iter()
+            .filter_map(|f| match *f {
+                world::faults::FaultArg::Random(r) => Some(r),
+                world::faults::FaultArg::Given(_) => None,
             })
             .collect(),
         settings: args.settings.clone(),

@@ -24,8 +24,8 @@ use world::{Track, World};
 
 use crate::instruments::observer::{Instruments, Observer};
 use crate::instruments::{Hooks, Run};
-use crate::plan::{load_world, Kick, LinkFault, Plan, SettingWrite, Transport};
-use crate::report::{GroundTruth, KickRecord, ObstacleReport, Report, RobotReport};
+use crate::plan::{load_world, FaultSpec, Kick, Plan, SettingWrite, Transport};
+use crate::report::{FaultRecord, GroundTruth, KickRecord, ObstacleReport, Report, RobotReport};
 use crate::supervisor::{Abort, Outcome, Supervisor};
 use crate::twin::{SimHandle, Truth};
 use world_model::safety::Safety;
@@ -75,9 +75,9 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     hooks.serve_panel(&supervisor, &robots, world).await?;
     // From here to the verdict the model is checked against the ground truth.
     let sampler = ModelSampler::start(sim.as_ref(), &model);
-    let kicks = sim
+    let landed = sim
         .as_ref()
-        .map(|h| inject_faults(h, &plan.faults, &setup.kicks));
+        .map(|h| inject_faults(h, &setup.faults, &setup.kicks, &hooks.event_log()));
     let started = tokio::time::Instant::now();
     let progress = progress_bar(plan.duration, started);
     let outcome = await_verdict(&supervisor, done, plan.duration).await?;
@@ -104,10 +104,10 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     if let Some(h) = &sim {
         h.stop();
     }
-    let kicks = kicks
+    let landed = landed
         .map(|k| k.lock().unwrap_or_else(|e| e.into_inner()).clone())
         .unwrap_or_default();
-    let report = build_report(&plan, world, ending, per_robot, wall.elapsed(), kicks);
+    let report = build_report(&plan, world, ending, per_robot, wall.elapsed(), landed);
     hooks.finish(report, &observer).await
 }
 
@@ -160,6 +160,8 @@ struct Setup {
     entry: Entry,
     /// Each kick with the index of its robot in the world.
     kicks: Vec<(usize, Kick)>,
+    /// Each fault (the world's, the plan's and those drawn) with the index of its robot.
+    faults: Vec<(usize, FaultSpec)>,
 }
 
 /// Finds the behaviour and loads its world, and checks the parameters, faults and kicks: a bad
@@ -242,13 +244,37 @@ fn resolve(plan: &Plan, registry: &Registry) -> Result<Setup> {
             ));
         }
     }
+    let faults = resolve_faults(plan, &world)?;
     Ok(Setup {
         world_name,
         world,
         track,
         entry: *entry,
         kicks,
+        faults,
     })
+}
+
+/// The faults a run injects: its world's, its plan's, and those drawn for its seed, each with
+/// the index of its robot in the world (cut down to the plan's robots).
+fn resolve_faults(plan: &Plan, world: &World) -> Result<Vec<(usize, FaultSpec)>> {
+    let ids: Vec<u16> = world.robots.iter().map(|r| r.id).collect();
+    let mut specs: Vec<FaultSpec> = world.faults.iter().chain(&plan.faults).copied().collect();
+    for (n, r) in plan.random_faults.iter().enumerate() {
+        // A second random fault in one run draws from its own stream.
+        let seed = plan.seed.wrapping_add((n as u64) << 32);
+        specs.extend(crate::plan::random_fault(*r, seed, &ids));
+    }
+    if !specs.is_empty() && plan.transport != Transport::Sim {
+        bail!("faults can only be injected into simulated robots (transport sim)");
+    }
+    specs
+        .into_iter()
+        .map(|f| match ids.iter().position(|&id| id == f.robot) {
+            Some(index) => Ok((index, f)),
+            None => bail!("{}: no such robot in the experiment", f.describe()),
+        })
+        .collect()
 }
 
 /// Starts the supervisor over the connected robots, running the plan's behaviour; the receiver

@@ -114,26 +114,43 @@ pub(super) async fn start_simulation(_: &Plan, _: &World) -> Result<(SimHandle, 
 }
 
 #[cfg(feature = "sim")]
-/// Schedules the plan's link cuts and kicks on the simulation's clock; each kick is recorded
-/// as it lands.
+/// Schedules the plan's faults and kicks on the simulation's clock; each is recorded (in the
+/// report and on the recording's `/events`) as it lands.
 pub(super) fn inject_faults(
     h: &SimHandle,
-    faults: &[LinkFault],
+    faults: &[(usize, FaultSpec)],
     kicks: &[(usize, Kick)],
-) -> Arc<std::sync::Mutex<Vec<KickRecord>>> {
-    for fault in faults.iter().copied() {
-        let h = h.clone();
+    log: &crate::instruments::EventLog,
+) -> Landed {
+    let landed: Landed = Arc::default();
+    for &(index, fault) in faults {
+        let (h, log, landed) = (h.clone(), log.clone(), Arc::clone(&landed));
         tokio::spawn(async move {
             tokio::time::sleep(fault.at).await;
-            h.set_link_up(fault.robot, false);
-            tokio::time::sleep(fault.duration).await;
-            h.set_link_up(fault.robot, true);
+            let at_s = h
+                .inspect(move |sim| {
+                    match fault.kind {
+                        crate::plan::FaultKind::Cut => sim.set_link_up(index, false),
+                        crate::plan::FaultKind::Reboot => sim.reboot(index),
+                        kind => sim.impair_link(index, kind, fault.lasting),
+                    }
+                    sim.now().as_secs_f64()
+                })
+                .await;
+            let Some(at_s) = at_s else { return };
+            let text = fault.describe();
+            tracing::info!(robot = fault.robot, "fault: {text}");
+            log.note(fault.robot, "fault", &text);
+            lock(&landed).1.push(FaultRecord { spec: fault, at_s });
+            if fault.kind == crate::plan::FaultKind::Cut {
+                tokio::time::sleep(fault.lasting).await;
+                h.set_link_up(index, true);
+                log.note(fault.robot, "fault-end", &text);
+            }
         });
     }
-    let records = Arc::new(std::sync::Mutex::new(Vec::new()));
     for &(index, kick) in kicks {
-        let h = h.clone();
-        let records = Arc::clone(&records);
+        let (h, log, landed) = (h.clone(), log.clone(), Arc::clone(&landed));
         tokio::spawn(async move {
             tokio::time::sleep(kick.at).await;
             let record = h.inspect(move |sim| land_kick(sim, index, kick)).await;
@@ -142,14 +159,19 @@ pub(super) fn inject_faults(
                     None => tracing::info!(robot = kick.robot, by = ?record.by, "kicked"),
                     Some(e) => tracing::warn!(robot = kick.robot, "kick not applied: {e}"),
                 }
-                records
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .push(record);
+                log.note(kick.robot, "kick", &record.describe());
+                lock(&landed).0.push(record);
             }
         });
     }
-    records
+    landed
+}
+
+/// What landed on the simulated robots from outside: kicks and faults, in the order they did.
+pub(super) type Landed = Arc<std::sync::Mutex<(Vec<KickRecord>, Vec<FaultRecord>)>>;
+
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Gives `kick` to robot `index` now: its displacement drawn here when it is random, turned
@@ -190,9 +212,10 @@ fn land_kick(sim: &mut Simulation, index: usize, kick: Kick) -> KickRecord {
 #[cfg(not(feature = "sim"))]
 pub(super) fn inject_faults(
     h: &SimHandle,
-    _: &[LinkFault],
+    _: &[(usize, FaultSpec)],
     _: &[(usize, Kick)],
-) -> Arc<std::sync::Mutex<Vec<KickRecord>>> {
+    _: &crate::instruments::EventLog,
+) -> Landed {
     match *h {}
 }
 

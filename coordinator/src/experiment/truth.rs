@@ -82,7 +82,7 @@ pub(super) fn build_report(
     ending: Ending,
     robots: Vec<RobotReport>,
     wall_time: Duration,
-    kicks: Vec<KickRecord>,
+    (kicks, faults): (Vec<KickRecord>, Vec<FaultRecord>),
 ) -> Report {
     let Ending {
         outcome,
@@ -107,6 +107,7 @@ pub(super) fn build_report(
             wall_contact_log: t.wall_contact_log.clone(),
             model_samples: model_errors.samples,
             physics_hz: plan.physics_hz(),
+            longest_unattended_s: t.longest_unattended_s(),
         }),
         held_intents: outcome
             .held
@@ -126,6 +127,7 @@ pub(super) fn build_report(
             host_load: plan.host_load,
         },
         kicks,
+        faults,
     }
 }
 

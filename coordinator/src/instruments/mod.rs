@@ -61,6 +61,26 @@ pub struct Run {
     pub replayed: Option<(std::collections::BTreeMap<String, u64>, Option<String>)>,
 }
 
+/// The recording's `/events`, for what happens to the robots from outside (a fault, a kick).
+#[derive(Clone)]
+pub(crate) struct EventLog {
+    recorder: Option<Arc<Recorder>>,
+    t0: Instant,
+}
+
+impl EventLog {
+    /// Notes `kind` happening to robot `robot` now.
+    pub(crate) fn note(&self, robot: u16, kind: &str, detail: &str) {
+        if let Some(rec) = &self.recorder {
+            let t = (Instant::now() - self.t0).as_secs_f64();
+            rec.json(
+                Topic::Events,
+                &json!({"t": t, "robot": robot, "kind": kind, "detail": detail}),
+            );
+        }
+    }
+}
+
 pub(crate) struct Hooks {
     instruments: Instruments,
     recorder: Option<Arc<Recorder>>,
@@ -146,6 +166,15 @@ impl Hooks {
                 }
             })
             .collect()
+    }
+
+    /// Where faults and kicks are noted as they land: the recording's `/events`, when there is
+    /// one.
+    pub(crate) fn event_log(&self) -> EventLog {
+        EventLog {
+            recorder: self.recorder.clone(),
+            t0: self.t0,
+        }
     }
 
     /// Whether an instrument needs every reflected state: a run with none of them keeps the

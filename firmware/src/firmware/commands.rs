@@ -74,7 +74,7 @@ impl<B: Board> Firmware<B> {
         let pong = packets::Pong {
             seq: p.seq,
             host_time_us: p.host_time_us,
-            robot_time_us: self.now.as_micros(),
+            robot_time_us: self.now.since(self.boot).as_micros(),
         };
         self.send(&pong);
     }

@@ -90,7 +90,7 @@ impl<B: Board> Firmware<B> {
         }
         self.halt(packets::MoveOutcome::Blocked);
         self.send_event_at(packets::Reflex {
-            at_ms: now.as_millis() as u32,
+            at_ms: self.clock_ms(now),
             seq: 0,
             side: side as u8,
             power_level: power,
@@ -116,7 +116,7 @@ impl<B: Board> Firmware<B> {
         };
         if let Some(b) = self.bump.update(&sample, &self.settings.bump) {
             self.send_event_at(packets::Bump {
-                at_ms: b.at.as_millis() as u32,
+                at_ms: self.clock_ms(b.at),
                 seq: 0,
                 peak_mg: b.peak_mg.clamp(0.0, f32::from(u16::MAX)) as u16,
                 moved_mm: (b.moved_m * 1e3).clamp(0.0, f32::from(u16::MAX)) as u16,

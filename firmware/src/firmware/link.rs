@@ -106,7 +106,7 @@ impl<B: Board> Firmware<B> {
 
     /// Sends an event stamped now and numbered.
     pub(super) fn send_event<E: Event>(&mut self, mut e: E) {
-        e.stamp(self.now.as_millis() as u32, 0);
+        e.stamp(self.clock_ms(self.now), 0);
         self.send_event_at(e);
     }
 

@@ -73,6 +73,9 @@ pub struct Firmware<B: Board> {
     last_main: Option<Instant>,
     now: Instant,
     started: bool,
+    /// When this boot's first tick ran: the robot's clock (state, events, pongs) counts from it,
+    /// as a microcontroller's counter starts again at every reset.
+    boot: Instant,
     /// Why the stored settings were refused at boot, reported once the link runs.
     boot_refusal: Option<SettingsError>,
 }
@@ -121,8 +124,14 @@ impl<B: Board> Firmware<B> {
             last_main: None,
             now: Instant::ZERO,
             started: false,
+            boot: Instant::ZERO,
             boot_refusal,
         }
+    }
+
+    /// The robot's clock at `t`, milliseconds since boot (wrapping), as every report gives it.
+    pub(crate) fn clock_ms(&self, t: Instant) -> u32 {
+        t.since(self.boot).as_millis() as u32
     }
 
     /// The board, for a simulator or test to inspect.
@@ -216,6 +225,7 @@ impl<B: Board> Firmware<B> {
 
     fn start(&mut self, now: Instant) {
         self.started = true;
+        self.boot = now;
         self.scheduler.schedule(Channel::MainLoop, now);
         self.scheduler.schedule(Channel::LineSensor, now);
         self.scheduler.schedule(Channel::IrTransmit, now);

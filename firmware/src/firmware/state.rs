@@ -17,8 +17,9 @@ impl<B: Board> Firmware<B> {
         wheels: WheelInputs,
         targets: (f32, f32),
     ) {
+        let uptime_ms = self.clock_ms(now);
         let s = &mut self.state;
-        s.uptime_ms = now.as_millis() as u32;
+        s.uptime_ms = uptime_ms;
         s.encoders.left_ticks = wheels.left_ticks;
         s.encoders.right_ticks = wheels.right_ticks;
         s.wheels.left_mps = wheels.left_mps;

@@ -72,9 +72,25 @@ struct Reflected {
     full_at: Option<Instant>,
     /// When the last reduced state arrived.
     reduced_at: Option<Instant>,
+    /// A state showed that the robot restarted since the one before, and the link it came on
+    /// has not been restarted for it yet.
+    rebooted: bool,
 }
 
+/// A robot whose clock since boot goes back by more than this restarted: reordered or delayed
+/// states go back by a few packets' worth, never by a second.
+const REBOOT_BACK_MS: u32 = 1_000;
+
 impl Reflected {
+    /// Whether a state sampled at the robot's `uptime_ms` comes from after a restart: its clock
+    /// since boot went back (a wrap after 49 days goes forward).
+    fn restarted(&self, uptime_ms: u32) -> bool {
+        let back = self.state.uptime_ms.wrapping_sub(uptime_ms);
+        (self.full_at.is_some() || self.reduced_at.is_some())
+            && back > REBOOT_BACK_MS
+            && back < 1 << 31
+    }
+
     fn merge_reduced(&mut self, r: ReducedState) {
         self.state.uptime_ms = r.uptime_ms;
         self.state.encoders = r.encoders;
@@ -210,17 +226,30 @@ impl RobotActor {
         }
     }
 
+    /// A robot that restarted counts its encoders from zero again: the odometry takes the next
+    /// totals as its new base, not as a drive back. Its queued moves and unsaved settings are
+    /// gone with its RAM, so the link is restarted too (see the stream handler).
+    fn restart_if_rebooted(&mut self, uptime_ms: u32) {
+        if self.reflected.restarted(uptime_ms) {
+            warn!(robot = self.robot_id(), "the robot restarted");
+            self.odometry.rebase();
+            self.reflected.rebooted = self.greeting.greeted;
+        }
+    }
+
     /// `at`: when the packet arrived (one clock read per packet: at thousands of links per core
     /// each read counts).
     fn handle_packet(&mut self, packet: AnyPacket, at: Instant) {
         match packet {
             AnyPacket::State(s) => {
+                self.restart_if_rebooted(s.uptime_ms);
                 self.reflected.state = s;
                 self.reflected.full_at = Some(at);
                 self.publish_state(false, at);
                 self.redeliver(&s);
             }
             AnyPacket::ReducedState(r) => {
+                self.restart_if_rebooted(r.uptime_ms);
                 self.reflected.merge_reduced(r);
                 self.reflected.reduced_at = Some(at);
                 self.publish_state(true, at);
@@ -391,6 +420,11 @@ impl StreamHandler<(u64, LinkEvent)> for RobotActor {
                     Ok(frame) => {
                         self.link.stats.packets_in += 1;
                         self.handle_packet(frame.packet(), now);
+                        if std::mem::take(&mut self.reflected.rebooted) {
+                            // Dropped and made again, the link greets afresh: the host's
+                            // settings are written again and the supervisor hears of the gap.
+                            self.link_lost(ctx, "the robot restarted");
+                        }
                     }
                     Err(e) => {
                         self.link.stats.checksum_errors += 1;

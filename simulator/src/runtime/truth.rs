@@ -48,6 +48,24 @@ pub struct Poses {
     pub robots: Vec<(u16, Pose)>,
 }
 
+impl Truth {
+    /// The longest any robot's wheels kept turning while its host was silent (a cut link, a
+    /// lost burst, a host that stopped), seconds: from the last packet it heard to its wheels
+    /// stopping, or to the next packet or now if they never did. A robot already standing when
+    /// the silence began counts nothing.
+    pub fn longest_unattended_s(&self) -> f64 {
+        let now = self.now.as_secs_f64();
+        self.host_silences
+            .iter()
+            .flatten()
+            .map(|s| {
+                let end = s.wheels_stopped_s.or(s.resumed_s).unwrap_or(now);
+                (end - s.last_packet_s).max(0.0)
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
 /// Ground truth of a simulation.
 pub fn truth(sim: &Simulation) -> Truth {
     use crate::sim::ContactKind;

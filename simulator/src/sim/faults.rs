@@ -50,6 +50,22 @@ impl Simulation {
         self.robots[i].link.set_up(up);
     }
 
+    /// Puts fault `kind` (loss, latency, corruption, duplication or reordering) on robot `i`'s
+    /// link, both ways, for the packets sent over the next `lasting` of simulated time.
+    pub fn impair_link(
+        &mut self,
+        i: usize,
+        kind: world::faults::FaultKind,
+        lasting: std::time::Duration,
+    ) {
+        let until_ns = self
+            .now_ns
+            .saturating_add(u64::try_from(lasting.as_nanos()).unwrap_or(u64::MAX));
+        self.robots[i]
+            .link
+            .impair(Some(crate::link::Impairment { kind, until_ns }));
+    }
+
     /// Injects (`Some`) or repairs (`None`) a fault of robot `i`'s body; it lasts through
     /// reboots, as a broken part would.
     pub fn set_body_fault(&mut self, i: usize, fault: Option<BodyFault>) {
