@@ -170,6 +170,7 @@ pub(super) fn inject_faults(
 /// What landed on the simulated robots from outside: kicks and faults, in the order they did.
 pub(super) type Landed = Arc<std::sync::Mutex<(Vec<KickRecord>, Vec<FaultRecord>)>>;
 
+#[cfg(feature = "sim")]
 fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }

@@ -62,6 +62,8 @@ pub struct Run {
 }
 
 /// The recording's `/events`, for what happens to the robots from outside (a fault, a kick).
+// Only simulated robots take faults and kicks: built without the simulator nothing notes them.
+#[cfg_attr(not(feature = "sim"), allow(dead_code))]
 #[derive(Clone)]
 pub(crate) struct EventLog {
     recorder: Option<Arc<Recorder>>,
@@ -70,6 +72,7 @@ pub(crate) struct EventLog {
 
 impl EventLog {
     /// Notes `kind` happening to robot `robot` now.
+    #[cfg_attr(not(feature = "sim"), allow(dead_code))]
     pub(crate) fn note(&self, robot: u16, kind: &str, detail: &str) {
         if let Some(rec) = &self.recorder {
             let t = (Instant::now() - self.t0).as_secs_f64();
