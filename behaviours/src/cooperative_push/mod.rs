@@ -219,6 +219,8 @@ pub struct CooperativePush {
     box_half: f64,
     laps: f64,
     bots: BTreeMap<u16, Bot>,
+    /// Robots following the tape whose link was lost and has not come back.
+    link_down: std::collections::BTreeSet<u16>,
     phase: Phase,
     phase_since: Duration,
     finder: Option<u16>,
@@ -285,6 +287,7 @@ impl Register for CooperativePush {
             odometer: Odometer::new(),
             verdict: None,
             regroups: 0,
+            link_down: Default::default(),
             regroup_why: None,
             routed: Vec::new(),
             retry_at: None,

@@ -493,7 +493,36 @@ impl Behaviour for CooperativePush {
                 )));
                 out
             }
-            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            // Following the tape, a robot whose link is lost is stopped by its watchdog and
+            // follows on once the robot actor has it back; the others keep their distance on the
+            // tape as from any robot standing there. Around the box the team regroups behind it,
+            // and from the push on each robot gets back onto the tape in turn, as after a robot
+            // lost; either waits for the robot to be back.
+            Event::LinkLost => match self.phase {
+                Phase::Approach | Phase::Lapping => {
+                    self.link_down.insert(robot);
+                    Vec::new()
+                }
+                Phase::Regroup | Phase::Rejoin => Vec::new(),
+                _ if self.after_push() => {
+                    self.rejoin(format!("robot {robot} lost its link"), world, team)
+                }
+                _ => {
+                    let mut out = self.stop_team(world, team);
+                    out.extend(self.regroup(format!("robot {robot} lost its link"), world, team));
+                    out
+                }
+            },
+            Event::Connected if self.link_down.remove(&robot) => {
+                if matches!(self.phase, Phase::Approach | Phase::Lapping) {
+                    vec![Intent::FollowLine {
+                        robot,
+                        speed: Some(self.speed),
+                    }]
+                } else {
+                    Vec::new()
+                }
+            }
             _ => Vec::new(),
         }
     }

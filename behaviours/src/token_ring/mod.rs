@@ -122,6 +122,9 @@ pub struct TokenRing {
     /// Robots lost and not yet found again: what they sense while their search turns them
     /// about (another robot seen ahead) is no pass of the token.
     lost: std::collections::BTreeSet<u16>,
+    /// Robots whose link was lost and has not come back: stopped by their watchdogs, sensing
+    /// nothing the team hears of.
+    link_down: std::collections::BTreeSet<u16>,
     /// When each robot last backed away to make room.
     room_made: BTreeMap<u16, Duration>,
     odometer: Odometer,
@@ -171,6 +174,7 @@ impl Register for TokenRing {
             last_pass: Duration::ZERO,
             forgive_until: Duration::ZERO,
             lost: Default::default(),
+            link_down: Default::default(),
             room_made: BTreeMap::new(),
             odometer: Odometer::new(),
             verdict: None,

@@ -269,7 +269,9 @@ impl Behaviour for TokenRing {
                     && e.side == Side::Front
                     && !self.turning
                     && !self.lost.contains(&robot)
-                    && !self.lost.contains(&e.robot) =>
+                    && !self.lost.contains(&e.robot)
+                    && !self.link_down.contains(&robot)
+                    && !self.link_down.contains(&e.robot) =>
             {
                 let Some(view) = world.robot(robot) else {
                     return Vec::new();
@@ -304,7 +306,18 @@ impl Behaviour for TokenRing {
                 out
             }
             Event::MoveFinished { .. } => self.pump(robot, world, team).into_iter().collect(),
-            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            // Its watchdog stops it and the robot actor reconnects; the robots behind it stop at
+            // it on the tape, as behind a robot lost. Back, it follows on with the others.
+            Event::LinkLost => {
+                self.forgive_until = world.time + LOST_STOPS;
+                self.link_down.insert(robot);
+                Vec::new()
+            }
+            Event::Connected => {
+                self.link_down.remove(&robot);
+                self.forgive_until = world.time + LOST_STOPS;
+                Vec::new()
+            }
             _ => Vec::new(),
         }
     }

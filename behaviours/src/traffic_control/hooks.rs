@@ -3,6 +3,9 @@
 
 use super::*;
 
+/// Why a robot whose link was lost waits, as [`TrafficControl::explain`] says it.
+const LINK_LOST: &str = "its link was lost; it waits to reconnect";
+
 impl TrafficControl {
     pub(super) fn finish(&mut self, world: &WorldSnapshot) -> Vec<Intent> {
         let minutes = world.time.saturating_sub(self.started).as_secs_f64() / 60.0;
@@ -59,6 +62,18 @@ impl TrafficControl {
 
     /// One round: arrivals, recovery, replanning and dispatch. Lifelong plans are made only at
     /// a `snapshot`, so that all robots reaching their goals since the last one share a plan.
+    /// Robot `k` is back (found, or its link up again): its leg goes on from where it stands.
+    fn found(&mut self, k: usize, world: &WorldSnapshot, team: &Team) -> Vec<Intent> {
+        self.bots[k].lost = None;
+        self.last_progress = world.time;
+        let mut out = Vec::new();
+        if self.bots[k].driving.is_some() && team.idle(self.bots[k].id) {
+            out.extend(self.drive(k, world));
+        }
+        out.extend(self.step(world, team, false));
+        out
+    }
+
     pub(super) fn step(
         &mut self,
         world: &WorldSnapshot,
@@ -224,7 +239,17 @@ impl Behaviour for TrafficControl {
                 }
                 Vec::new()
             }
-            Event::LinkLost => self.fail(format!("robot {robot} lost its link")),
+            // Its watchdog stops it where it is and the robot actor reconnects: the team treats it
+            // as a lost robot (the others wait for it, or make room) until it is back.
+            Event::LinkLost => {
+                if self.bots[k].lost.is_none() {
+                    self.lose(k, LINK_LOST.into());
+                }
+                Vec::new()
+            }
+            Event::Connected if self.bots[k].lost.as_deref() == Some(LINK_LOST) => {
+                self.found(k, world, team)
+            }
             _ => Vec::new(),
         }
     }
@@ -296,16 +321,7 @@ impl Behaviour for TrafficControl {
                 self.lose(k, why.clone());
                 Vec::new()
             }
-            LocalisationEvent::Found => {
-                self.bots[k].lost = None;
-                self.last_progress = world.time;
-                let mut out = Vec::new();
-                if self.bots[k].driving.is_some() && team.idle(robot) {
-                    out.extend(self.drive(k, world));
-                }
-                out.extend(self.step(world, team, false));
-                out
-            }
+            LocalisationEvent::Found => self.found(k, world, team),
         }
     }
 

@@ -154,6 +154,10 @@ enum Sub {
     /// Run a behaviour over seeds and settings, each run its own experiment, and summarise the
     /// success rate and metrics (`coordinator sweep merge` combines shards).
     Sweep(Box<coordinator::instruments::sweep::SweepCommand>),
+    /// Run every fault kind against every built-in over seeds (one sweep per behaviour) and
+    /// write the table of verdicts, contacts and stops; the exit status says whether every rule
+    /// held.
+    Campaign(coordinator::instruments::campaign::CampaignArgs),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -374,6 +378,7 @@ fn main() -> ExitCode {
         Some(Sub::Replay { file, panel, plot }) => replay(file, *panel, plot.as_deref(), &registry),
         Some(Sub::Recover { file, output }) => recover(file, output.as_deref()),
         Some(Sub::Sweep(sweep)) => coordinator::instruments::sweep::main(sweep),
+        Some(Sub::Campaign(c)) => coordinator::instruments::campaign::main(c),
         None => run(&args, &registry),
     };
     match result {

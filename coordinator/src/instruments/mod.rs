@@ -26,6 +26,7 @@ use tokio::sync::broadcast;
 use tokio::time::Instant;
 use world::World;
 
+pub mod campaign;
 pub mod observer;
 pub mod panel;
 pub mod plot;

@@ -63,6 +63,10 @@ pub struct SweepArgs {
     /// for none); repeat the flag for more values.
     #[arg(long = "kick", value_name = "ID:SECONDS:DX,DY[,DEG]")]
     pub kicks: Vec<String>,
+    /// A fault to try, as `coordinator --fault` takes it (several in one run joined by `+`,
+    /// `none` for none); repeat the flag for more values.
+    #[arg(long = "fault", value_name = "KIND:ID:SECONDS[:FOR[:AMOUNT]]")]
+    pub faults: Vec<String>,
     /// Each run's time limit in simulated seconds (default: the coordinator's).
     #[arg(long, value_parser = world::cli::parse_seconds, allow_negative_numbers = true)]
     pub duration: Option<f64>,
@@ -173,6 +177,10 @@ pub struct Definition {
     /// kick). Sweeps written before it read empty.
     #[serde(default)]
     pub kicks: Vec<String>,
+    /// Faults, each as `coordinator --fault` takes it, several joined by `+`, or `none` (empty:
+    /// no fault). Sweeps written before it read empty.
+    #[serde(default)]
+    pub faults: Vec<String>,
     /// Behaviour parameters and their values, in the order given.
     pub params: Vec<(String, Vec<String>)>,
     /// Seeds, in the order given.
@@ -203,6 +211,8 @@ pub struct RunSpec {
     pub physics_hz: Option<u32>,
     /// Kicks, when the sweep lists them.
     pub kick: Option<String>,
+    /// Faults, when the sweep lists them.
+    pub fault: Option<String>,
     /// Parameter values, in the sweep's parameter order.
     pub params: Vec<(String, String)>,
     /// Seed.
@@ -224,6 +234,9 @@ impl RunSpec {
         }
         if let Some(k) = &self.kick {
             c.push(("kick".to_string(), k.clone()));
+        }
+        if let Some(f) = &self.fault {
+            c.push(("fault".to_string(), f.clone()));
         }
         c.extend(self.params.iter().cloned());
         c
@@ -322,12 +335,27 @@ impl Definition {
             }
             kicks.push(k.to_string());
         }
+        let mut faults: Vec<String> = Vec::new();
+        for f in &a.faults {
+            let f = f.trim();
+            if f != "none" {
+                for part in f.split('+') {
+                    world::faults::parse_fault(part.trim())
+                        .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
+                }
+            }
+            if faults.iter().any(|q| q == f) {
+                bail!("--fault {f:?} is given twice");
+            }
+            faults.push(f.to_string());
+        }
         Ok(Self {
             behaviour,
             worlds,
             robots,
             physics_hz,
             kicks,
+            faults,
             params,
             seeds,
             duration_s: a.duration,
@@ -374,6 +402,9 @@ impl Definition {
         if self.kicks.len() > 1 {
             s.push(("kick".to_string(), self.kicks.clone()));
         }
+        if self.faults.len() > 1 {
+            s.push(("fault".to_string(), self.faults.clone()));
+        }
         s.extend(self.params.iter().filter(|(_, v)| v.len() > 1).cloned());
         s
     }
@@ -401,6 +432,11 @@ impl Definition {
         } else {
             self.kicks.iter().cloned().map(Some).collect()
         };
+        let faults: Vec<Option<String>> = if self.faults.is_empty() {
+            vec![None]
+        } else {
+            self.faults.iter().cloned().map(Some).collect()
+        };
         let mut combos: Vec<Vec<(String, String)>> = vec![Vec::new()];
         for (k, vs) in &self.params {
             combos = combos
@@ -418,7 +454,10 @@ impl Definition {
         for w in &worlds {
             for n in &robots {
                 for hz in &rates {
-                    for kick in &kicks {
+                    for (kick, fault) in kicks
+                        .iter()
+                        .flat_map(|k| faults.iter().map(move |f| (k, f)))
+                    {
                         for c in &combos {
                             for &seed in &self.seeds {
                                 runs.push(RunSpec {
@@ -427,6 +466,7 @@ impl Definition {
                                     robots: *n,
                                     physics_hz: *hz,
                                     kick: kick.clone(),
+                                    fault: fault.clone(),
                                     params: c.clone(),
                                     seed,
                                 });
@@ -488,7 +528,7 @@ pub fn parse_param_list(s: &str) -> Result<(String, Vec<String>)> {
     if k.is_empty() {
         bail!("--param {s:?}: the key is empty");
     }
-    if ["seed", "world", "robots", "physics_hz", "kick"].contains(&k) {
+    if ["seed", "world", "robots", "physics_hz", "kick", "fault"].contains(&k) {
         let flag = match k {
             "seed" => "seeds",
             "physics_hz" => "physics-hz",

@@ -282,6 +282,11 @@ fn command(
             cmd.arg("--kick").arg(part.trim());
         }
     }
+    for fault in spec.fault.iter().filter(|f| *f != "none") {
+        for part in fault.split('+') {
+            cmd.arg("--fault").arg(part.trim());
+        }
+    }
     for (k, v) in &spec.params {
         cmd.arg("--param").arg(format!("{k}={v}"));
     }
@@ -311,6 +316,7 @@ fn unfinished(spec: &RunSpec) -> RunResult {
         robots: spec.robots,
         physics_hz: spec.physics_hz,
         kick: spec.kick.clone(),
+        fault: spec.fault.clone(),
         params: spec.params.iter().cloned().collect(),
         seed: spec.seed,
         outcome: Outcome::Error,
@@ -325,6 +331,8 @@ fn unfinished(spec: &RunSpec) -> RunResult {
         lost_episodes: None,
         lost_s: None,
         kicks_landed: Vec::new(),
+        faults_landed: Vec::new(),
+        longest_unattended_s: None,
         contacts_at_kick: None,
         contacts_other: None,
         latency_p99_ms: None,
@@ -370,6 +378,15 @@ fn read_report(path: &Path, result: &mut RunResult) -> Result<()> {
                 .collect()
         })
         .unwrap_or_default();
+    result.faults_landed = v["faults"]
+        .as_array()
+        .map(|fs| {
+            fs.iter()
+                .filter_map(|f| f["text"].as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default();
+    result.longest_unattended_s = v["longest_unattended_s"].as_f64();
     let worst = |key: &str| {
         v["links"]
             .as_array()?

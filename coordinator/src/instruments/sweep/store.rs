@@ -45,6 +45,9 @@ pub struct RunResult {
     /// Kicks, when swept.
     #[serde(default)]
     pub kick: Option<String>,
+    /// The run's faults coordinate, when the sweep lists faults.
+    #[serde(default)]
+    pub fault: Option<String>,
     /// Parameter values.
     pub params: BTreeMap<String, String>,
     /// Seed.
@@ -80,6 +83,12 @@ pub struct RunResult {
     /// The kicks as they landed, one line each (random ones as drawn).
     #[serde(default)]
     pub kicks_landed: Vec<String>,
+    /// Each fault as it began, in words.
+    #[serde(default)]
+    pub faults_landed: Vec<String>,
+    /// The longest any robot's wheels turned while its host was silent, seconds (simulated).
+    #[serde(default)]
+    pub longest_unattended_s: Option<f64>,
     /// Contacts that began while a kick landed (the kick's own).
     #[serde(default)]
     pub contacts_at_kick: Option<u64>,
