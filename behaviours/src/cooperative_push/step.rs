@@ -496,14 +496,17 @@ impl Behaviour for CooperativePush {
             // Following the tape, a robot whose link is lost is stopped by its watchdog and
             // follows on once the robot actor has it back; the others keep their distance on the
             // tape as from any robot standing there. Around the box the team regroups behind it,
-            // and from the push on each robot gets back onto the tape in turn, as after a robot
-            // lost; either waits for the robot to be back.
+            // and after the push each robot gets back onto the tape in turn, as after a robot
+            // lost; either waits for the robot to be back. During the push itself the run ends:
+            // a pusher cut off mid-push stands wherever its slip left it, and backing it onto
+            // the tape from there met the wall (188304).
             Event::LinkLost => match self.phase {
                 Phase::Approach | Phase::Lapping => {
                     self.link_down.insert(robot);
                     Vec::new()
                 }
                 Phase::Regroup | Phase::Rejoin => Vec::new(),
+                Phase::Push => self.fail(format!("robot {robot} lost its link while pushing")),
                 _ if self.after_push() => {
                     self.rejoin(format!("robot {robot} lost its link"), world, team)
                 }
