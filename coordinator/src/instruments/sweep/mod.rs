@@ -321,34 +321,10 @@ impl Definition {
                     .map_err(|e| anyhow::anyhow!("--physics-hz {s:?}: {e}"))
             })
             .collect::<Result<Vec<_>>>()?;
-        let mut kicks: Vec<String> = Vec::new();
-        for k in &a.kicks {
-            let k = k.trim();
-            if k != "none" {
-                for part in k.split('+') {
-                    world::cli::parse_kick(part.trim())
-                        .map_err(|e| anyhow::anyhow!("--kick {k:?}: {e}"))?;
-                }
-            }
-            if kicks.iter().any(|q| q == k) {
-                bail!("--kick {k:?} is given twice");
-            }
-            kicks.push(k.to_string());
-        }
-        let mut faults: Vec<String> = Vec::new();
-        for f in &a.faults {
-            let f = f.trim();
-            if f != "none" {
-                for part in f.split('+') {
-                    world::faults::parse_fault(part.trim())
-                        .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
-                }
-            }
-            if faults.iter().any(|q| q == f) {
-                bail!("--fault {f:?} is given twice");
-            }
-            faults.push(f.to_string());
-        }
+        let kicks = parse_joined("--kick", &a.kicks, |k| world::cli::parse_kick(k).map(drop))?;
+        let faults = parse_joined("--fault", &a.faults, |f| {
+            world::faults::parse_fault(f).map(drop)
+        })?;
         Ok(Self {
             behaviour,
             worlds,
@@ -514,6 +490,32 @@ pub fn parse_seeds(s: &str) -> Result<Vec<u64>> {
         }
     }
     Ok(seeds)
+}
+
+/// Checks the values of a repeated `flag` whose value is several of one thing joined by `+`
+/// (or `none`), each part by `parse`.
+///
+/// # Errors
+/// A part `parse` refuses, or a value given twice.
+fn parse_joined(
+    flag: &str,
+    values: &[String],
+    parse: impl Fn(&str) -> std::result::Result<(), String>,
+) -> Result<Vec<String>> {
+    let mut out: Vec<String> = Vec::new();
+    for v in values {
+        let v = v.trim();
+        if v != "none" {
+            for part in v.split('+') {
+                parse(part.trim()).map_err(|e| anyhow::anyhow!("{flag} {v:?}: {e}"))?;
+            }
+        }
+        if out.iter().any(|q| q == v) {
+            bail!("{flag} {v:?} is given twice");
+        }
+        out.push(v.to_string());
+    }
+    Ok(out)
 }
 
 /// Parses `key=v1,v2,…`.
@@ -734,5 +736,45 @@ mod tests {
         assert!(bad.to_string().contains("--kick"), "{bad}");
         assert!(Definition::from_args(&args(&["none", "none"])).is_err());
         assert!(parse_param_list("kick=1").is_err());
+    }
+
+    #[test]
+    fn faults_are_a_coordinate_after_kicks_checked_before_any_run() {
+        let mut a = SweepArgs {
+            behaviour: Some("line_follow".into()),
+            seeds: Some("1".into()),
+            params: vec![],
+            worlds: vec![],
+            robots: vec![],
+            physics_hz: vec![],
+            kicks: vec!["none".into(), "random".into()],
+            faults: vec!["none".into(), "random:cut:2+reboot:1:5".into()],
+            duration: None,
+            jobs: None,
+            shard: None,
+            record_failures: false,
+            realtime: false,
+            link_profile: None,
+            host_load: 0,
+            out: None,
+        };
+        let d = Definition::from_args(&a).unwrap();
+        let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
+        assert_eq!(
+            ids,
+            [
+                "kick=none,fault=none,seed=1",
+                "kick=none,fault=random:cut:2+reboot:1:5,seed=1",
+                "kick=random,fault=none,seed=1",
+                "kick=random,fault=random:cut:2+reboot:1:5,seed=1",
+            ]
+        );
+        a.faults = vec!["latency:1:2:3:5".into()];
+        let bad = Definition::from_args(&a).unwrap_err().to_string();
+        assert!(
+            bad.contains("--fault") && bad.contains("at most 2"),
+            "{bad}"
+        );
+        assert!(parse_param_list("fault=1").is_err());
     }
 }
