@@ -302,12 +302,9 @@ impl Kick {
     /// The kick `random` draws for a run with `seed` among `robots` (ids): which robot and when;
     /// its displacement is drawn at that instant.
     pub fn random(r: RandomKick, seed: u64, robots: &[u16]) -> Option<Kick> {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x4B1C_4B1C_4B1C_4B1C);
-        let robot = *robots.get(rng.gen_range(0..robots.len().max(1)))?;
-        let from = 1.0;
-        let at =
-            Duration::from_secs_f64(rng.gen_range(from..r.within.as_secs_f64().max(from + 1e-3)));
+        use rand::Rng;
+        let (mut rng, robot, at) =
+            draw_robot_and_time(seed ^ 0x4B1C_4B1C_4B1C_4B1C, robots, r.within)?;
         Some(Kick {
             robot,
             at,
@@ -324,17 +321,28 @@ impl Kick {
 /// The fault `random:KIND` draws for a run with `seed` among `robots` (ids): which robot and
 /// when, from one second to the fault's window.
 pub fn random_fault(r: RandomFault, seed: u64, robots: &[u16]) -> Option<FaultSpec> {
-    use rand::{Rng, SeedableRng};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xFA17_FA17_FA17_FA17);
-    let robot = *robots.get(rng.gen_range(0..robots.len().max(1)))?;
-    let from = 1.0;
-    let at = Duration::from_secs_f64(rng.gen_range(from..r.within.as_secs_f64().max(from + 1e-3)));
+    let (_, robot, at) = draw_robot_and_time(seed ^ 0xFA17_FA17_FA17_FA17, robots, r.within)?;
     Some(FaultSpec {
         kind: r.kind,
         robot,
         at,
         lasting: r.lasting,
     })
+}
+
+/// One of `robots` and a time from one second to `within`, drawn from `seed`, with the stream for
+/// any further draws; `None` when there are no robots.
+fn draw_robot_and_time(
+    seed: u64,
+    robots: &[u16],
+    within: Duration,
+) -> Option<(rand_chacha::ChaCha8Rng, u16, Duration)> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let robot = *robots.get(rng.gen_range(0..robots.len().max(1)))?;
+    let from = 1.0;
+    let at = Duration::from_secs_f64(rng.gen_range(from..within.as_secs_f64().max(from + 1e-3)));
+    Some((rng, robot, at))
 }
 
 /// Loads a preset by name or a world file by path.

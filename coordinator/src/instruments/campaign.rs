@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 
@@ -121,7 +121,7 @@ pub fn main(a: &CampaignArgs) -> Result<bool> {
             link_profile: None,
             host_load: 0,
         };
-        let dir = sweep_dir(&a.out, b);
+        let dir = a.out.join(b);
         let options = Options {
             out: dir.clone(),
             jobs,
@@ -269,9 +269,4 @@ fn render(rows: &[Row], seeds: &[u64], given: &str) -> String {
         );
     }
     s
-}
-
-/// Where a campaign's sweep for `behaviour` lives under `out`.
-pub fn sweep_dir(out: &Path, behaviour: &str) -> PathBuf {
-    out.join(behaviour)
 }

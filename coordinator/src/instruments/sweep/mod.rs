@@ -697,17 +697,18 @@ mod tests {
         assert_eq!(old.runs().len(), 2);
     }
 
-    #[test]
-    fn kicks_are_a_coordinate_checked_before_any_run() {
-        let args = |kicks: &[&str]| SweepArgs {
-            behaviour: Some("token_ring".into()),
-            seeds: Some("1..2".into()),
+    /// A sweep of `behaviour` over `seeds` with these kicks and faults, everything else default.
+    fn disturbed(behaviour: &str, seeds: &str, kicks: &[&str], faults: &[&str]) -> SweepArgs {
+        let own = |v: &[&str]| v.iter().map(|k| k.to_string()).collect();
+        SweepArgs {
+            behaviour: Some(behaviour.into()),
+            seeds: Some(seeds.into()),
             params: vec![],
             worlds: vec![],
             robots: vec![],
             physics_hz: vec![],
-            kicks: kicks.iter().map(|k| k.to_string()).collect(),
-            faults: vec![],
+            kicks: own(kicks),
+            faults: own(faults),
             duration: None,
             jobs: None,
             shard: None,
@@ -716,7 +717,12 @@ mod tests {
             link_profile: None,
             host_load: 0,
             out: None,
-        };
+        }
+    }
+
+    #[test]
+    fn kicks_are_a_coordinate_checked_before_any_run() {
+        let args = |kicks: &[&str]| disturbed("token_ring", "1..2", kicks, &[]);
         let d = Definition::from_args(&args(&["none", "2:5:0.05,0", "1:3:0,0.02+3:8:0.01,0,10"]))
             .unwrap();
         let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
@@ -740,24 +746,12 @@ mod tests {
 
     #[test]
     fn faults_are_a_coordinate_after_kicks_checked_before_any_run() {
-        let mut a = SweepArgs {
-            behaviour: Some("line_follow".into()),
-            seeds: Some("1".into()),
-            params: vec![],
-            worlds: vec![],
-            robots: vec![],
-            physics_hz: vec![],
-            kicks: vec!["none".into(), "random".into()],
-            faults: vec!["none".into(), "random:cut:2+reboot:1:5".into()],
-            duration: None,
-            jobs: None,
-            shard: None,
-            record_failures: false,
-            realtime: false,
-            link_profile: None,
-            host_load: 0,
-            out: None,
-        };
+        let mut a = disturbed(
+            "line_follow",
+            "1",
+            &["none", "random"],
+            &["none", "random:cut:2+reboot:1:5"],
+        );
         let d = Definition::from_args(&a).unwrap();
         let ids: Vec<String> = d.runs().iter().map(RunSpec::id).collect();
         assert_eq!(
