@@ -69,6 +69,8 @@ pub struct Plan {
     pub link: Option<world::cli::LinkProfileArg>,
     /// Threads kept busy beside the experiment, standing for other programs on the host.
     pub host_load: usize,
+    /// A killed run taken over (`--resume`): its robots adopted where its recording left them.
+    pub resume: Option<std::sync::Arc<crate::experiment::resume::Resume>>,
 }
 
 /// One robot setting the coordinator writes to every robot before the experiment starts,
@@ -162,6 +164,7 @@ impl Plan {
             physics_every: 1,
             link: None,
             host_load: 0,
+            resume: None,
         }
     }
 

@@ -246,6 +246,8 @@ pub struct Conditions {
     pub link_profile: Option<String>,
     /// Threads kept busy beside the experiment.
     pub host_load: usize,
+    /// The killed run this one took over (`--resume`), and how each robot was adopted.
+    pub resumed: Option<crate::experiment::resume::Resumed>,
 }
 
 /// The peak resident set size of this process so far, bytes: `VmHWM` in `/proc/self/status`, so
@@ -809,6 +811,31 @@ impl Report {
         pace.extend(c.link_profile.as_ref().map(|l| format!("link {l}")));
         if c.host_load > 0 {
             pace.push(format!("host load {}", c.host_load));
+        }
+        if let Some(r) = &c.resumed {
+            let rebooted: Vec<String> = r
+                .robots
+                .iter()
+                .filter(|a| a.rebooted)
+                .map(|a| a.id.to_string())
+                .collect();
+            let driven = r
+                .robots
+                .iter()
+                .map(|a| a.driven_m.abs())
+                .fold(0.0, f64::max);
+            pace.push(format!(
+                "resumed from {} at {:.2} s: {} robots adopted, the farthest driven in the gap {:.0} mm{}",
+                r.from,
+                r.at_s,
+                r.robots.len(),
+                driven * 1e3,
+                if rebooted.is_empty() {
+                    ", none restarted".to_string()
+                } else {
+                    format!(", robots {} had restarted", rebooted.join(", "))
+                }
+            ));
         }
         write!(
             f,

@@ -65,10 +65,22 @@ impl Odometry {
         *self = Self::new(self.geometry, origin);
     }
 
+    /// Carries on at `pose` from counters the robot reported earlier (`counters`): the next update
+    /// counts every pulse since them, so travel while nobody was listening is not lost.
+    pub fn continue_from(&mut self, pose: Pose, counters: (i32, i32)) {
+        *self = Self::new(self.geometry, pose);
+        self.last = Some(counters);
+    }
+
     /// The robot's counters start again (it restarted): the next update only records them, and
     /// the pose stays where it is.
     pub fn rebase(&mut self) {
         self.last = None;
+    }
+
+    /// The wheels it counts with.
+    pub fn geometry(&self) -> Geometry {
+        self.geometry
     }
 
     /// Pulses counted since the origin, left and right.
@@ -91,6 +103,17 @@ impl Odometry {
 
     /// Takes new encoder totals as reported by the robot (wrapping `i32`).
     pub fn update(&mut self, left: i32, right: i32) -> Pose {
+        self.advance(left, right, false)
+    }
+
+    /// Takes totals after a long gap as one arc of constant curvature: its chord, not its
+    /// length, along the mean heading, which is exact for an arc (a robot following a curve) where
+    /// [`Odometry::update`]'s short steps need no such care.
+    pub fn update_across_gap(&mut self, left: i32, right: i32) -> Pose {
+        self.advance(left, right, true)
+    }
+
+    fn advance(&mut self, left: i32, right: i32, chord: bool) -> Pose {
         let Some((l0, r0)) = self.last.replace((left, right)) else {
             return self.pose;
         };
@@ -103,7 +126,11 @@ impl Odometry {
         self.totals.0 += dl;
         self.totals.1 += dr;
         let after = self.heading();
-        let d = self.geometry.tick_m() * (dl + dr) as f64 * 0.5;
+        let mut d = self.geometry.tick_m() * (dl + dr) as f64 * 0.5;
+        let half = 0.5 * (after - before);
+        if chord && half.abs() > 1e-9 {
+            d *= half.sin() / half;
+        }
         let mid = 0.5 * (before + after);
         self.pose = Pose {
             x: self.pose.x + d * mid.cos(),
@@ -143,6 +170,27 @@ mod tests {
         let expected = TAU * g.wheel_radius_m / (g.gauge_m * g.ticks_per_rev) * (2 * q) as f64;
         assert_eq!(o.pose().theta, expected);
         assert!((expected - std::f64::consts::FRAC_PI_2).abs() < 0.03);
+    }
+
+    #[test]
+    fn an_arc_taken_across_a_gap_lands_on_the_arc() {
+        // A line follower on the oval's curve (radius 0.15 m) for a third of a turn, counted in
+        // one step after its host died.
+        let g = geometry();
+        let (radius, angle) = (0.15, TAU / 3.0);
+        let outer = ((radius + g.gauge_m / 2.0) * angle / g.tick_m()).round() as i32;
+        let inner = ((radius - g.gauge_m / 2.0) * angle / g.tick_m()).round() as i32;
+        let (x, y) = (radius * angle.sin(), radius * (1.0 - angle.cos()));
+        let mut gap = Odometry::new(g, Pose::default());
+        gap.continue_from(Pose::default(), (0, 0));
+        let p = gap.update_across_gap(inner, outer);
+        // Within what a tick's rounding moves the end (about 2 mm of travel a wheel).
+        assert!((p.x - x).hypot(p.y - y) < 0.002, "{p:?}");
+        // Taken as a straight step, the same counts land past the arc's end.
+        let mut straight = Odometry::new(g, Pose::default());
+        straight.continue_from(Pose::default(), (0, 0));
+        let q = straight.update(inner, outer);
+        assert!((q.x - x).hypot(q.y - y) > 0.01, "{q:?}");
     }
 
     #[test]

@@ -26,8 +26,14 @@ use world::presets;
 )]
 struct Args {
     /// The behaviour to run (see --list-behaviours).
-    #[arg(long, required_unless_present_any = ["list_behaviours", "list_worlds"])]
+    #[arg(long, required_unless_present_any = ["list_behaviours", "list_worlds", "resume"])]
     behaviour: Option<String>,
+    /// Take over the run recorded in FILE.mcap whose coordinator died: its behaviour, world, seed
+    /// and robot addresses come from the recording; the robots are adopted without a reboot,
+    /// where its last world snapshot left them (carried on by their encoders), and the behaviour
+    /// starts again from there, within what is left of the time limit.
+    #[arg(long, value_name = "FILE.mcap", conflicts_with_all = ["behaviour", "world", "robots", "transport", "seed", "params", "kick", "fault"])]
+    resume: Option<PathBuf>,
     /// Number of simulated robots, a comma-separated list of robot addresses, or with
     /// --transport zenoh the number of robots to wait for.
     #[arg(long)]
@@ -392,7 +398,17 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, registry: &Registry) -> Result<bool> {
-    let plan = plan(args)?;
+    let plan = match &args.resume {
+        Some(path) => {
+            let (plan, resume) = coordinator::experiment::resume::Resume::load(path)?;
+            Plan {
+                settings: args.settings.clone(),
+                resume: Some(std::sync::Arc::new(resume)),
+                ..plan
+            }
+        }
+        None => plan(args)?,
+    };
     let outputs = Outputs::claim(&[
         ("--json-report", args.json_report.as_deref()),
         ("--plot", args.plot.as_deref()),

@@ -31,6 +31,7 @@ use crate::twin::{SimHandle, Truth};
 use world_model::safety::Safety;
 use world_model::WorldModel;
 
+pub mod resume;
 mod robots;
 mod truth;
 
@@ -71,7 +72,11 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     )
     .await?;
     write_settings(&robots, &plan.settings).await?;
-    let (supervisor, model, done) = start_supervisor(&plan, &setup, &robots);
+    let resumed = match &plan.resume {
+        Some(r) => Some(r.adopt(&robots).await?),
+        None => None,
+    };
+    let (supervisor, model, done) = start_supervisor(&plan, &setup, &robots, resumed.as_ref());
     hooks.serve_panel(&supervisor, &robots, world).await?;
     // From here to the verdict the model is checked against the ground truth.
     let sampler = ModelSampler::start(sim.as_ref(), &model);
@@ -107,7 +112,8 @@ pub async fn run_with(plan: Plan, registry: &Registry, instruments: Instruments)
     let landed = landed
         .map(|k| k.lock().unwrap_or_else(|e| e.into_inner()).clone())
         .unwrap_or_default();
-    let report = build_report(&plan, world, ending, per_robot, wall.elapsed(), landed);
+    let mut report = build_report(&plan, world, ending, per_robot, wall.elapsed(), landed);
+    report.conditions.resumed = resumed;
     hooks.finish(report, &observer).await
 }
 
@@ -283,6 +289,7 @@ fn start_supervisor(
     plan: &Plan,
     setup: &Setup,
     robots: &[(u16, Robot)],
+    resumed: Option<&resume::Resumed>,
 ) -> (
     actix::Addr<Supervisor>,
     WorldModel,
@@ -306,6 +313,11 @@ fn start_supervisor(
         done_tx,
     );
     let model = supervisor.model();
+    // Before the supervisor takes its first state: adopted robots start as uncertain as the
+    // killed run left them, widened for the gap.
+    for a in resumed.map_or(&[][..], |r| &r.robots) {
+        model.resume(a.id, a.sigma_mm / 1e3, a.sigma_deg.to_radians());
+    }
     (supervisor.start(), model, done_rx)
 }
 

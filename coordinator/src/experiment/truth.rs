@@ -125,6 +125,7 @@ pub(super) fn build_report(
             realtime: plan.realtime,
             link_profile: plan.link.as_ref().map(|l| l.name.clone()),
             host_load: plan.host_load,
+            resumed: None,
         },
         kicks,
         faults,

@@ -124,6 +124,11 @@ impl Hooks {
                     params: plan.params.clone(),
                     simulated: matches!(plan.transport, Transport::Sim)
                         || replay.as_ref().is_some_and(|r| r.info.simulated),
+                    addresses: match &plan.transport {
+                        Transport::Addresses(a) => a.clone(),
+                        _ => Vec::new(),
+                    },
+                    duration_s: Some(plan.duration.as_secs_f64()),
                     start_unix_ns: std::time::SystemTime::now()
                         .duration_since(std::time::UNIX_EPOCH)
                         .map_or(0, |d| d.as_nanos() as u64),

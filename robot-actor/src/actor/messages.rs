@@ -268,6 +268,36 @@ pub struct RestoreDefaults;
 #[rtype(result = "()")]
 pub struct SetOdometryOrigin(pub Pose);
 
+/// Carries the odometry on from an earlier host's record of this robot (`coordinator --resume`):
+/// at `pose` when its clock read `uptime_ms` and its counters `counters`. Says how far the robot
+/// went since, by its counters, or that it restarted (then nothing since is known).
+#[derive(Message)]
+#[rtype(result = "Continued")]
+pub struct ContinueOdometry {
+    /// Where the robot was.
+    pub pose: Pose,
+    /// Its clock then.
+    pub uptime_ms: u32,
+    /// Its encoder counters then, left and right.
+    pub counters: (i32, i32),
+}
+
+/// What the robot's own counters say happened since a [`ContinueOdometry`] record.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Continued {
+    /// A state has arrived on this link since the hello (otherwise nothing is known yet).
+    pub reported: bool,
+    /// Its clock went back: it restarted, its counters are new and the odometry starts afresh at
+    /// the recorded pose.
+    pub rebooted: bool,
+    /// Distance driven since the record (mean of the wheels), metres.
+    pub driven_m: f64,
+    /// Heading turned since the record, radians.
+    pub turned_rad: f64,
+    /// Robot time since the record, milliseconds.
+    pub elapsed_ms: u32,
+}
+
 /// Closes the link and stops the actor.
 #[derive(Message)]
 #[rtype(result = "()")]

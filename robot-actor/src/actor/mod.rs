@@ -34,10 +34,10 @@ pub use delivery::DeliveryCounts;
 pub use error::{incompatibilities, Incompatibility, RobotError};
 pub use liveness::LinkStats;
 pub use messages::{
-    Close, Command, Enqueue, GetSnapshot, MoveCommand, ReadSettings, ReflectorSetup,
-    RestoreDefaults, RobotConfig, RobotEvent, RobotEventKind, RobotSnapshot, SaveSettings,
-    SetOdometryOrigin, StateUpdated, Subscribe, SubscribeEvents, WaitConnected, WaitIdle,
-    WriteSettings,
+    Close, Command, ContinueOdometry, Continued, Enqueue, GetSnapshot, MoveCommand, ReadSettings,
+    ReflectorSetup, RestoreDefaults, RobotConfig, RobotEvent, RobotEventKind, RobotSnapshot,
+    SaveSettings, SetOdometryOrigin, StateUpdated, Subscribe, SubscribeEvents, WaitConnected,
+    WaitIdle, WriteSettings,
 };
 pub use settings::host_settings_layout;
 
@@ -61,6 +61,8 @@ pub struct RobotActor {
     subscribers: Subscribers,
     moves: Moves,
     delivery: Delivery,
+    /// A [`ContinueOdometry`] that waits for the link's first state.
+    continuing: Option<(ContinueOdometry, oneshot::Sender<Continued>)>,
 }
 
 /// The robot's latest reflected state.
@@ -127,6 +129,7 @@ impl RobotActor {
             subscribers: Subscribers::default(),
             moves: Moves::new(),
             delivery: Delivery::default(),
+            continuing: None,
         }
     }
 
@@ -202,6 +205,9 @@ impl RobotActor {
     }
 
     fn publish_state(&mut self, reduced: bool, at: Instant) {
+        if let Some((msg, reply)) = self.continuing.take() {
+            let _ = reply.send(self.continue_odometry(&msg));
+        }
         let pose = self.odometry.update(
             self.reflected.state.encoders.left_ticks,
             self.reflected.state.encoders.right_ticks,
@@ -543,6 +549,48 @@ impl Handler<SetOdometryOrigin> for RobotActor {
     type Result = ();
     fn handle(&mut self, msg: SetOdometryOrigin, _: &mut Self::Context) {
         self.odometry.reset(msg.0);
+    }
+}
+
+impl Handler<ContinueOdometry> for RobotActor {
+    type Result = ResponseFuture<Continued>;
+    fn handle(&mut self, msg: ContinueOdometry, _: &mut Self::Context) -> Self::Result {
+        let reported = self.reflected.full_at.is_some() || self.reflected.reduced_at.is_some();
+        if reported {
+            let c = self.continue_odometry(&msg);
+            return Box::pin(async move { c });
+        }
+        // Answered with the first state; a link that closes first answers nothing known.
+        let (tx, rx) = oneshot::channel();
+        self.continuing = Some((msg, tx));
+        Box::pin(async move { rx.await.unwrap_or_default() })
+    }
+}
+
+impl RobotActor {
+    /// Carries the odometry on from `msg`'s record to the latest reflected state.
+    fn continue_odometry(&mut self, msg: &ContinueOdometry) -> Continued {
+        let elapsed_ms = self.reflected.state.uptime_ms.wrapping_sub(msg.uptime_ms);
+        // A clock that went back restarted (one that went forward by half its range did too).
+        if elapsed_ms >= 1 << 31 {
+            self.odometry.reset(msg.pose);
+            return Continued {
+                reported: true,
+                rebooted: true,
+                ..Continued::default()
+            };
+        }
+        self.odometry.continue_from(msg.pose, msg.counters);
+        let e = self.reflected.state.encoders;
+        let pose = self.odometry.update_across_gap(e.left_ticks, e.right_ticks);
+        let (l, r) = self.odometry.totals();
+        Continued {
+            reported: true,
+            rebooted: false,
+            driven_m: self.odometry.geometry().tick_m() * (l + r) as f64 * 0.5,
+            turned_rad: pose.theta - msg.pose.theta,
+            elapsed_ms,
+        }
     }
 }
 

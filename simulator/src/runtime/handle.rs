@@ -75,6 +75,21 @@ impl SimHandle {
         rx.await.ok()
     }
 
+    /// Runs `f` on the simulation once its clock reaches `at` (at once if it has), however fast
+    /// it runs: what a test waits on instead of the wall clock. `None` once it has stopped.
+    pub async fn at<T: Send + 'static>(
+        &self,
+        at: Duration,
+        f: impl FnOnce(&mut Simulation) -> T + Send + 'static,
+    ) -> Option<T> {
+        let (tx, rx) = oneshot::channel();
+        let job = Box::new(move |sim: &mut Simulation| {
+            let _ = tx.send(f(sim));
+        });
+        self.commands.send(Command::At(at, job)).ok()?;
+        rx.await.ok()
+    }
+
     /// Stops the stepping task.
     pub fn stop(&self) {
         let _ = self.commands.send(Command::Stop);

@@ -56,6 +56,8 @@ enum Command {
     Displace(usize, [f64; 3], oneshot::Sender<Result<Pose, String>>),
     DisplaceAt(Duration, usize, [f64; 3], world::cli::KickHow),
     Inspect(Box<dyn FnOnce(&mut Simulation) + Send>),
+    /// A job for a simulated time, run between the steps that reach it.
+    At(Duration, Box<dyn FnOnce(&mut Simulation) + Send>),
     Stop,
 }
 

@@ -90,13 +90,20 @@ pub(super) async fn step_loop(
     let wall_start = tokio::time::Instant::now();
     let sim_start = sim.now();
     let mut kicks: Vec<Kick> = Vec::new();
+    let mut jobs: Vec<Job> = Vec::new();
     loop {
         while let Ok(c) = commands.try_recv() {
-            if obey(&mut sim, c, &to_robot, &mut kicks).is_break() {
-                return sim;
+            match c {
+                Command::At(at, job) => jobs.push((at, job)),
+                c => {
+                    if obey(&mut sim, c, &to_robot, &mut kicks).is_break() {
+                        return sim;
+                    }
+                }
             }
         }
         start_due_kicks(&mut sim, &mut kicks);
+        run_due_jobs(&mut sim, &mut jobs);
         for (i, (buffer, flag)) in to_robot.iter().zip(waiting.iter()).enumerate() {
             // Load before swapping: most flags are down, and a load does not take the line.
             if flag.load(Ordering::Acquire) && flag.swap(false, Ordering::AcqRel) {
@@ -111,6 +118,23 @@ pub(super) async fn step_loop(
         }
         deliver_to_host(&mut sim, &from_robot, &to_robot);
         keep_pace(pace, dt, sim.now(), sim_start, wall_start).await;
+    }
+}
+
+/// A job waiting for its simulated time.
+type Job = (Duration, Box<dyn FnOnce(&mut Simulation) + Send>);
+
+/// Runs every job whose time has come, in the order they were given.
+fn run_due_jobs(sim: &mut Simulation, jobs: &mut Vec<Job>) {
+    if jobs.iter().all(|(at, _)| sim.now() < *at) {
+        return;
+    }
+    let (due, later): (Vec<Job>, Vec<Job>) = std::mem::take(jobs)
+        .into_iter()
+        .partition(|(at, _)| sim.now() >= *at);
+    *jobs = later;
+    for (_, job) in due {
+        job(sim);
     }
 }
 
@@ -150,6 +174,8 @@ fn obey(
         }
         Command::DisplaceAt(at, i, by, how) => kicks.push((at, i, by, how)),
         Command::Inspect(job) => job(sim),
+        // Taken by the stepping loop, which keeps the jobs waiting.
+        Command::At(_, job) => job(sim),
         Command::Stop => return ControlFlow::Break(()),
     }
     ControlFlow::Continue(())

@@ -434,6 +434,16 @@ impl WorldModel {
         })
     }
 
+    /// Robot `id` is taken over from an earlier host's record (`coordinator --resume`): before
+    /// its first update, its estimate starts as uncertain as that record, widened for the gap,
+    /// instead of as well known as a world file's start pose.
+    pub fn resume(&self, id: u16, position_m: f64, heading_rad: f64) {
+        let mut e = Estimate::default();
+        widen(&mut e.cov, position_m, heading_rad);
+        self.estimates.insert(id, e);
+        self.show_estimate(id, None, false);
+    }
+
     /// The search for lost robot `id` ended without finding it (no tape seen, or the tape it
     /// was put on did not match as it followed it): the next search starts afresh, its position
     /// across a tape not fixed (a fix the follow disproved would otherwise keep the next

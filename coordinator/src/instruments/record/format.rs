@@ -131,6 +131,11 @@ pub struct RunInfo {
     pub params: BTreeMap<String, String>,
     /// Whether the robots were simulated (their odometry origins then come from the world).
     pub simulated: bool,
+    /// The robots' addresses when they were reached by address (`--transport tcp` and the
+    /// like), in run order: what `coordinator --resume` connects to again. Empty otherwise.
+    pub addresses: Vec<String>,
+    /// The run's time limit, seconds (absent from older recordings).
+    pub duration_s: Option<f64>,
     /// Wall-clock time of the recording's zero, nanoseconds since the Unix epoch; every log time
     /// is this plus the run's own clock.
     pub start_unix_ns: u64,
@@ -150,6 +155,12 @@ impl RunInfo {
         );
         m.insert("simulated".into(), self.simulated.to_string());
         m.insert("start_unix_ns".into(), self.start_unix_ns.to_string());
+        if !self.addresses.is_empty() {
+            m.insert("addresses".into(), self.addresses.join(","));
+        }
+        if let Some(d) = self.duration_s {
+            m.insert("duration_s".into(), d.to_string());
+        }
         m
     }
 
@@ -177,6 +188,14 @@ impl RunInfo {
             start_unix_ns: get("start_unix_ns")?
                 .parse()
                 .with_context(|| parse_err("start_unix_ns"))?,
+            addresses: m
+                .get("addresses")
+                .map(|a| a.split(',').map(str::to_string).collect())
+                .unwrap_or_default(),
+            duration_s: m
+                .get("duration_s")
+                .map(|d| d.parse().with_context(|| parse_err("duration_s")))
+                .transpose()?,
         })
     }
 }
