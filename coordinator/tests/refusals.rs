@@ -72,6 +72,39 @@ fn durations_out_of_range_are_usage_errors() {
 }
 
 #[test]
+fn resume_refuses_what_it_cannot_take_over() {
+    let dir = scratch();
+    let missing = dir.path().join("none.mcap");
+    let out = coordinator(&["--resume", missing.to_str().unwrap()]);
+    assert_refused(&out, &["none.mcap"]);
+    // Robots simulated inside a coordinator die with it: nothing is left to adopt.
+    let simulated = dir.path().join("sim.mcap");
+    let out = coordinator(&[
+        "--behaviour",
+        "square_walk",
+        "--robots",
+        "1",
+        "--duration",
+        "1",
+        "--record",
+        simulated.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "a second is too short for a square"
+    );
+    let out = coordinator(&["--resume", simulated.to_str().unwrap()]);
+    assert_refused(
+        &out,
+        &["simulated inside the coordinator", "nothing to take over"],
+    );
+    // A resumed run's behaviour, world and robots are the recording's.
+    let out = coordinator(&["--resume", "x.mcap", "--behaviour", "square_walk"]);
+    assert_refused(&out, &["--behaviour"]);
+}
+
+#[test]
 fn an_unknown_parameter_is_named_with_the_behaviours_parameters() {
     let out = coordinator(&["--behaviour", "square_walk", "--param", "bogus=1"]);
     assert_refused(
